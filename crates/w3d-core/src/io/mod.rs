@@ -1,0 +1,71 @@
+//! Mesh file IO (OBJ + MTL, PLY, glTF / GLB) and atomic writes.
+//!
+//! [`load_mesh`] and [`save_mesh`] pick the format from the file extension. Every write
+//! goes to a temporary file beside the destination and is renamed into place, so a
+//! failed write never leaves a half-written file.
+
+mod gltf_io;
+mod obj;
+mod ply;
+
+use std::fs::File;
+use std::io::{BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+pub use gltf_io::{read_gltf, write_glb};
+pub use obj::{read_obj, write_obj};
+pub use ply::{read_ply, write_ply};
+
+use crate::{Error, Mesh, Result};
+
+/// Reads a mesh from an `.obj`, `.ply`, `.glb` or `.gltf` file.
+pub fn load_mesh(path: impl AsRef<Path>) -> Result<Mesh> {
+    let path = path.as_ref();
+    match extension(path).as_str() {
+        "obj" => read_obj(path),
+        "ply" => read_ply(path),
+        "glb" | "gltf" => read_gltf(path),
+        other => Err(Error::format(path, "file extension", format!("one of .obj, .ply, .glb, .gltf, got {other:?}"))),
+    }
+}
+
+/// Writes a mesh to an `.obj` (+ `.mtl` and `.png` when textured), `.ply` or `.glb` file.
+pub fn save_mesh(path: impl AsRef<Path>, mesh: &Mesh) -> Result<()> {
+    let path = path.as_ref();
+    match extension(path).as_str() {
+        "obj" => write_obj(path, mesh),
+        "ply" => write_ply(path, mesh),
+        "glb" => write_glb(path, mesh),
+        other => Err(Error::format(path, "file extension", format!("one of .obj, .ply, .glb for writing, got {other:?}"))),
+    }
+}
+
+fn extension(path: &Path) -> String {
+    path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase()
+}
+
+/// A temporary path beside `path` (same directory, so a rename is atomic).
+pub(crate) fn temp_path(path: &Path) -> PathBuf {
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
+}
+
+/// Writes a file atomically: `write` fills a buffered temporary file beside `path`,
+/// which is then flushed and renamed onto `path`. On any error the temporary file is
+/// removed and `path` is left untouched.
+pub fn write_atomic(path: impl AsRef<Path>, write: impl FnOnce(&mut BufWriter<File>) -> Result<()>) -> Result<()> {
+    let path = path.as_ref();
+    let tmp = temp_path(path);
+    let result = (|| {
+        let file = File::create(&tmp).map_err(|e| Error::io(path, e))?;
+        let mut w = BufWriter::new(file);
+        write(&mut w)?;
+        w.flush().map_err(|e| Error::io(path, e))?;
+        drop(w);
+        std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}

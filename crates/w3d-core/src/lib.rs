@@ -1,0 +1,46 @@
+//! Core types of wonder3d-rs: [`Mesh`], [`Camera`], the view rigs ([`ViewRig`]), per-view
+//! images ([`ViewSet`], [`Image`]), mesh and image file IO, and the one [`Error`] type.
+//!
+//! Everything here is plain data: slices of `[f32; 3]` positions and `[u32; 3]`
+//! counter-clockwise triangles, `[H][W][C]` row-major float images, and `glam` vectors for
+//! small math. The canonical frame is right-handed and y-up, with the input (front)
+//! camera on +z looking along −z (see `DESIGN.md` §3).
+//!
+//! ```
+//! use w3d_core::{Mesh, ViewRig};
+//!
+//! // A unit right tetrahedron, normalised into the unit cube.
+//! let positions = vec![[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 2.0]];
+//! let triangles = vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
+//! let mut mesh = Mesh::new(positions, triangles)?;
+//! mesh.normalize_unit_cube();
+//! let topology = mesh.topology();
+//! assert!(topology.is_watertight());
+//! assert_eq!(topology.genus(), Some(0));
+//!
+//! // Where does the front camera of the Wonder3D rig see the first corner?
+//! let rig = ViewRig::wonder3d_ortho();
+//! let front = &rig.views[0].camera;
+//! let pixel = front.project(mesh.positions()[0].into(), 256, 256);
+//! assert!(pixel.x < 128.0 && pixel.y > 128.0); // lower left of the image centre
+//! # Ok::<(), w3d_core::Error>(())
+//! ```
+
+pub mod camera;
+mod error;
+pub mod image;
+pub mod io;
+pub mod mesh;
+pub mod rig;
+pub mod viewset;
+
+pub use camera::{Camera, Projection, Ray};
+pub use error::{Error, Result};
+pub use image::Image;
+pub use io::{load_mesh, save_mesh};
+pub use mesh::{Mesh, Normalization, Topology};
+pub use rig::{RigView, ViewRig};
+pub use viewset::{ViewImages, ViewSet};
+
+/// Re-exported so users of the public API get the same `glam` version.
+pub use glam;

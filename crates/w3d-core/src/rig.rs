@@ -1,0 +1,161 @@
+//! Camera rigs: the Wonder3D 6-view rig and the SyncDreamer 16-view evaluation rig.
+//!
+//! Every crate takes its cameras from here (`DESIGN.md` §3). Rigs are independent of
+//! image resolution; a [`crate::ViewSet`] carries the images.
+
+use std::path::Path;
+
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+
+use crate::camera::{Camera, Projection};
+use crate::{Error, Result};
+
+/// Names of the Wonder3D views, in rig order.
+pub const WONDER3D_VIEW_NAMES: [&str; 6] = ["front", "front_right", "right", "back", "left", "front_left"];
+
+/// Azimuths of the Wonder3D views in degrees, in rig order (same order as
+/// [`WONDER3D_VIEW_NAMES`]).
+pub const WONDER3D_AZIMUTHS_DEG: [f32; 6] = [0.0, 45.0, 90.0, 180.0, -90.0, -45.0];
+
+/// Half-extent of the Wonder3D image at the origin, world units: images span
+/// `[-0.75, 0.75]²`.
+pub const WONDER3D_HALF_EXTENT: f32 = 0.75;
+
+/// Camera distance of the Wonder3D perspective rig: `0.75 / tan(fov/2)` with the fov of a
+/// 35 mm lens on a 32 mm sensor, so the image spans the same 1.5 units at the origin.
+/// The orthographic rig uses the same distance (it only affects depth values).
+pub const WONDER3D_DISTANCE: f32 = WONDER3D_HALF_EXTENT * 35.0 / 16.0;
+
+/// One named camera of a rig.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RigView {
+    /// View name, e.g. `front_right`; also used in file names.
+    pub name: String,
+    /// The camera.
+    pub camera: Camera,
+}
+
+/// An ordered set of named cameras around the object.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ViewRig {
+    /// Rig name, e.g. `wonder3d_ortho`.
+    pub name: String,
+    /// The views, in rig order.
+    pub views: Vec<RigView>,
+}
+
+/// Position on a sphere of radius `distance` at `azimuth` / `elevation` (radians) in the
+/// canonical frame: azimuth 0 is +z (the front), positive azimuth turns towards +x.
+pub fn orbit_position(azimuth: f32, elevation: f32, distance: f32) -> Vec3 {
+    distance * Vec3::new(elevation.cos() * azimuth.sin(), elevation.sin(), elevation.cos() * azimuth.cos())
+}
+
+impl ViewRig {
+    fn orbit(name: &str, names: &[String], azimuths_deg: &[f32], elevation_deg: f32, distance: f32, projection: Projection) -> Self {
+        let views = names
+            .iter()
+            .zip(azimuths_deg)
+            .map(|(view_name, &a)| RigView {
+                name: view_name.clone(),
+                camera: Camera {
+                    eye: orbit_position(a.to_radians(), elevation_deg.to_radians(), distance),
+                    target: Vec3::ZERO,
+                    up: Vec3::Y,
+                    projection,
+                },
+            })
+            .collect();
+        ViewRig { name: name.to_string(), views }
+    }
+
+    fn wonder3d(name: &str, projection: Projection) -> Self {
+        let names: Vec<String> = WONDER3D_VIEW_NAMES.iter().map(|s| s.to_string()).collect();
+        Self::orbit(name, &names, &WONDER3D_AZIMUTHS_DEG, 0.0, WONDER3D_DISTANCE, projection)
+    }
+
+    /// The Wonder3D 6-view rig with orthographic cameras spanning `[-0.75, 0.75]²`.
+    pub fn wonder3d_ortho() -> Self {
+        Self::wonder3d("wonder3d_ortho", Projection::Orthographic { half_height: WONDER3D_HALF_EXTENT })
+    }
+
+    /// The Wonder3D 6-view rig with 35 mm perspective cameras (fov 49.13°) at
+    /// [`WONDER3D_DISTANCE`].
+    pub fn wonder3d_persp() -> Self {
+        Self::wonder3d("wonder3d_persp", Projection::from_lens(35.0, 32.0))
+    }
+
+    /// The SyncDreamer 16-view evaluation rig in the y-up frame: elevation 30°, azimuth
+    /// 0, 22.5, …, 337.5°, distance 1.5, the fov of fx = 280 px at 256² (49.13°).
+    pub fn syncdreamer16() -> Self {
+        let azimuths: Vec<f32> = (0..16).map(|i| i as f32 * 22.5).collect();
+        let names: Vec<String> = (0..16).map(|i| format!("view_{i:02}")).collect();
+        let fov_y = 2.0 * (128.0f32 / 280.0).atan();
+        Self::orbit("syncdreamer16", &names, &azimuths, 30.0, 1.5, Projection::Perspective { fov_y })
+    }
+
+    /// A rig by its command-line name: `wonder3d-ortho`, `wonder3d-persp` or
+    /// `syncdreamer16` (underscores accepted too).
+    pub fn by_name(name: &str) -> Result<Self> {
+        match name.replace('_', "-").as_str() {
+            "wonder3d-ortho" => Ok(Self::wonder3d_ortho()),
+            "wonder3d-persp" => Ok(Self::wonder3d_persp()),
+            "syncdreamer16" => Ok(Self::syncdreamer16()),
+            _ => Err(Error::invalid("rig", format!("one of wonder3d-ortho, wonder3d-persp, syncdreamer16; got {name:?}"))),
+        }
+    }
+
+    /// Number of views.
+    pub fn len(&self) -> usize {
+        self.views.len()
+    }
+
+    /// True if the rig has no views.
+    pub fn is_empty(&self) -> bool {
+        self.views.is_empty()
+    }
+
+    /// Iterator over the cameras in rig order.
+    pub fn cameras(&self) -> impl Iterator<Item = &Camera> {
+        self.views.iter().map(|v| &v.camera)
+    }
+
+    /// Checks that the rig has views, unique names and valid cameras.
+    pub fn validate(&self) -> Result<()> {
+        if self.views.is_empty() {
+            return Err(Error::invalid("views", "at least one view"));
+        }
+        for (i, v) in self.views.iter().enumerate() {
+            if v.name.is_empty() || v.name.contains(['/', '\\']) {
+                return Err(Error::invalid(format!("views[{i}].name"), "a non-empty name without path separators"));
+            }
+            if self.views[..i].iter().any(|o| o.name == v.name) {
+                return Err(Error::invalid(format!("views[{i}].name"), format!("a unique name, {:?} is repeated", v.name)));
+            }
+            v.camera.validate().map_err(|e| match e {
+                Error::Invalid { field, expected } => Error::invalid(format!("views[{i}].{field}"), expected),
+                other => other,
+            })?;
+        }
+        Ok(())
+    }
+
+    /// Writes the rig as JSON (`cameras.json`), atomically.
+    pub fn save_json(&self, path: impl AsRef<Path>) -> Result<()> {
+        let path = path.as_ref();
+        let text = serde_json::to_string_pretty(self).expect("a rig always serialises");
+        crate::io::write_atomic(path, |w| w.write_all(text.as_bytes()).map_err(|e| Error::io(path, e)))
+    }
+
+    /// Reads and validates a rig written by [`ViewRig::save_json`].
+    pub fn load_json(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref();
+        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let rig: ViewRig = serde_json::from_str(&text)
+            .map_err(|e| Error::format(path, format!("line {} column {}", e.line(), e.column()), format!("a camera rig ({e})")))?;
+        rig.validate().map_err(|e| e.in_file(path))?;
+        Ok(rig)
+    }
+}
+
+use std::io::Write as _;
