@@ -1,0 +1,180 @@
+//! Bad input gives the documented error, naming the file and field, and never panics.
+
+use std::path::Path;
+
+use w3d_core::{Error, Image, ViewRig, ViewSet, load_mesh};
+
+fn write(dir: &Path, name: &str, bytes: &[u8]) -> std::path::PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, bytes).unwrap();
+    p
+}
+
+/// The error's message, after checking that it names `path`.
+fn message_for(err: Error, path: &Path) -> String {
+    let msg = err.to_string();
+    assert!(msg.contains(&path.display().to_string()), "error should name {}: {msg}", path.display());
+    msg
+}
+
+#[test]
+fn missing_file_is_an_io_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("nope.obj");
+    let err = load_mesh(&p).unwrap_err();
+    assert!(matches!(err, Error::Io { .. }), "{err}");
+    message_for(err, &p);
+}
+
+#[test]
+fn empty_obj_has_no_triangles() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "empty.obj", b"");
+    let msg = message_for(load_mesh(&p).unwrap_err(), &p);
+    assert!(msg.contains("positions") || msg.contains("triangles"), "{msg}");
+}
+
+#[test]
+fn truncated_obj_vertex_is_rejected() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "trunc.obj", b"v 0 0 0\nv 1 0 0\nv 0 1");
+    let msg = message_for(load_mesh(&p).unwrap_err(), &p);
+    assert!(msg.contains("OBJ"), "{msg}");
+}
+
+#[test]
+fn obj_with_nan_vertex_names_the_coordinate() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "nan.obj", b"v 0 0 0\nv 1 nan 0\nv 0 1 0\nf 1 2 3\n");
+    let msg = message_for(load_mesh(&p).unwrap_err(), &p);
+    assert!(msg.contains("positions[1].y") && msg.contains("finite"), "{msg}");
+}
+
+#[test]
+fn obj_index_out_of_range_is_rejected() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "range.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n");
+    message_for(load_mesh(&p).unwrap_err(), &p);
+}
+
+#[test]
+fn missing_mtl_texture_names_the_texture() {
+    let dir = tempfile::tempdir().unwrap();
+    write(dir.path(), "m.mtl", b"newmtl a\nmap_Kd gone.png\n");
+    let p = write(dir.path(), "m.obj", b"mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nusemtl a\nf 1/1 2/2 3/3\n");
+    let msg = message_for(load_mesh(&p).unwrap_err(), &p);
+    assert!(msg.contains("map_Kd") && msg.contains("gone.png"), "{msg}");
+}
+
+#[test]
+fn missing_mtl_file_is_rejected() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "m.obj", b"mtllib absent.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n");
+    let msg = message_for(load_mesh(&p).unwrap_err(), &p);
+    assert!(msg.contains("mtllib"), "{msg}");
+}
+
+#[test]
+fn truncated_binary_ply_names_the_row() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut bytes = b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n".to_vec();
+    bytes.extend(std::iter::repeat_n(0u8, 4 * 7)); // 7 of the 9 floats
+    let p = write(dir.path(), "t.ply", &bytes);
+    let msg = message_for(load_mesh(&p).unwrap_err(), &p);
+    assert!(msg.contains("element vertex row 2"), "{msg}");
+}
+
+#[test]
+fn ply_without_header_end_is_rejected() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "h.ply", b"ply\nformat ascii 1.0\nelement vertex 3\n");
+    let msg = message_for(load_mesh(&p).unwrap_err(), &p);
+    assert!(msg.contains("end_header"), "{msg}");
+}
+
+#[test]
+fn ascii_ply_with_bad_index_is_rejected() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(
+        dir.path(),
+        "i.ply",
+        b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 7\n",
+    );
+    let msg = message_for(load_mesh(&p).unwrap_err(), &p);
+    assert!(msg.contains("triangles[0]"), "{msg}");
+}
+
+#[test]
+fn garbage_glb_is_rejected() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "g.glb", b"glTF\x02\0\0\0garbage");
+    message_for(load_mesh(&p).unwrap_err(), &p);
+}
+
+#[test]
+fn unknown_extension_is_rejected() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "mesh.stl", b"solid x\n");
+    let msg = message_for(load_mesh(&p).unwrap_err(), &p);
+    assert!(msg.contains("extension"), "{msg}");
+}
+
+#[test]
+fn png_with_wrong_channel_count_is_rejected() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("rgb.png");
+    Image::filled(4, 4, 3, 0.5).unwrap().write_png(&p).unwrap();
+    let msg = message_for(Image::read_png_channels(&p, 4).unwrap_err(), &p);
+    assert!(msg.contains("4 channels, got 3"), "{msg}");
+}
+
+#[test]
+fn not_a_png_is_rejected() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "x.png", b"\x89PNG\r\n\x1a\nshort");
+    message_for(Image::read_png(&p).unwrap_err(), &p);
+}
+
+#[test]
+fn view_set_with_mismatched_sizes_is_rejected() {
+    let rig = ViewRig::wonder3d_ortho();
+    let mut set = oracle_like_set(&rig, 8);
+    set.views[3].mask = Image::filled(8, 7, 1, 1.0).unwrap();
+    let msg = set.validate(&rig).unwrap_err().to_string();
+    assert!(msg.contains("views[3].mask") && msg.contains("8×8"), "{msg}");
+}
+
+#[test]
+fn malformed_cameras_json_names_the_line() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = write(dir.path(), "cameras.json", b"{\"name\": \"x\",\n \"views\": [ {\"name\": 3} ] }");
+    let msg = message_for(ViewRig::load_json(&p).unwrap_err(), &p);
+    assert!(msg.contains("line 2"), "{msg}");
+    let p = write(dir.path(), "cameras.json", b"{\"name\": \"x\", \"views\": []}");
+    let msg = message_for(ViewRig::load_json(&p).unwrap_err(), &p);
+    assert!(msg.contains("at least one view"), "{msg}");
+}
+
+#[test]
+fn failed_write_leaves_no_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("nan.png");
+    let err = Image::new(1, 1, 1, vec![f32::NAN]).unwrap().write_png(&p).unwrap_err();
+    assert!(err.to_string().contains("NaN"));
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+}
+
+fn oracle_like_set(rig: &ViewRig, size: u32) -> ViewSet {
+    let views = rig
+        .views
+        .iter()
+        .map(|v| w3d_core::ViewImages {
+            name: v.name.clone(),
+            normal: Image::filled(size, size, 3, 0.0).unwrap(),
+            colour: None,
+            mask: Image::filled(size, size, 1, 0.0).unwrap(),
+            depth: None,
+        })
+        .collect();
+    ViewSet { views }
+}

@@ -1,0 +1,26 @@
+//! Helpers shared by the integration tests (included with `mod common;`).
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+
+/// `../shared/data/meshes` beside the repository.
+pub fn shared_meshes() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../../shared/data/meshes")
+}
+
+/// The repository's `assets/`.
+pub fn assets() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../assets")
+}
+
+/// Every mesh file (OBJ, PLY) of the shared test data, sorted.
+pub fn shared_mesh_files() -> Vec<PathBuf> {
+    let dir = shared_meshes();
+    let mut files: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap_or_else(|e| panic!("{}: {e} (tests need ../shared beside the repository)", dir.display()))
+        .map(|e| e.unwrap().path())
+        .filter(|p| matches!(p.extension().and_then(|e| e.to_str()), Some("obj" | "ply")))
+        .collect();
+    files.sort();
+    files
+}
