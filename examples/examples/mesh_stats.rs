@@ -18,7 +18,13 @@ fn main() -> Result<(), w3d_core::Error> {
     let topology = merged.topology();
     println!("{}: {} vertices, {} triangles", path.display(), mesh.vertex_count(), mesh.triangle_count());
     println!("scaled by {:.4} about {:?} into the unit cube", transform.scale, transform.centre);
-    println!("watertight: {}, components: {}, euler: {}, genus: {:?}", topology.is_watertight(), topology.components, topology.euler, topology.genus());
+    println!(
+        "watertight: {}, components: {}, euler: {}, genus: {:?}",
+        topology.is_watertight(),
+        topology.components,
+        topology.euler,
+        topology.genus()
+    );
 
     let rig = ViewRig::wonder3d_ortho();
     let front = &rig.views[0].camera;

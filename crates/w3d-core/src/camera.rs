@@ -163,9 +163,7 @@ impl Camera {
         let nx = px / width as f32 * 2.0 - 1.0;
         let ny = 1.0 - py / height as f32 * 2.0;
         let cam = match self.projection {
-            Projection::Orthographic { half_height } => {
-                Vec3::new(nx * half_height * aspect, ny * half_height, -depth)
-            }
+            Projection::Orthographic { half_height } => Vec3::new(nx * half_height * aspect, ny * half_height, -depth),
             Projection::Perspective { fov_y } => {
                 let t = (0.5 * fov_y).tan();
                 Vec3::new(nx * depth * t * aspect, ny * depth * t, -depth)
@@ -207,8 +205,13 @@ mod tests {
 
     #[test]
     fn front_camera_maps_origin_to_image_centre() {
-        let cam = Camera::look_at(Vec3::new(0.0, 0.0, 2.0), Vec3::ZERO, Vec3::Y, Projection::Orthographic { half_height: 0.75 })
-            .unwrap();
+        let cam = Camera::look_at(
+            Vec3::new(0.0, 0.0, 2.0),
+            Vec3::ZERO,
+            Vec3::Y,
+            Projection::Orthographic { half_height: 0.75 },
+        )
+        .unwrap();
         let p = cam.project(Vec3::ZERO, 256, 256);
         assert_relative_eq!(p.x, 128.0);
         assert_relative_eq!(p.y, 128.0);
@@ -231,6 +234,8 @@ mod tests {
         assert!(Camera::look_at(Vec3::ONE, Vec3::ONE, Vec3::Y, ortho).is_err());
         assert!(Camera::look_at(Vec3::Y, Vec3::ZERO, Vec3::Y, ortho).is_err());
         assert!(Camera::look_at(Vec3::Z, Vec3::ZERO, Vec3::Y, Projection::Perspective { fov_y: 4.0 }).is_err());
-        assert!(Camera::look_at(Vec3::Z, Vec3::ZERO, Vec3::Y, Projection::Orthographic { half_height: f32::NAN }).is_err());
+        assert!(
+            Camera::look_at(Vec3::Z, Vec3::ZERO, Vec3::Y, Projection::Orthographic { half_height: f32::NAN }).is_err()
+        );
     }
 }

@@ -20,11 +20,17 @@ impl Image {
     /// `width · height · channels`.
     pub fn new(width: u32, height: u32, channels: u32, data: Vec<f32>) -> Result<Self> {
         if width == 0 || height == 0 || channels == 0 {
-            return Err(Error::invalid("image size", format!("non-zero width, height and channels, got {width}×{height}×{channels}")));
+            return Err(Error::invalid(
+                "image size",
+                format!("non-zero width, height and channels, got {width}×{height}×{channels}"),
+            ));
         }
         let expected = width as usize * height as usize * channels as usize;
         if data.len() != expected {
-            return Err(Error::invalid("image data", format!("{expected} values for {width}×{height}×{channels}, got {}", data.len())));
+            return Err(Error::invalid(
+                "image data",
+                format!("{expected} values for {width}×{height}×{channels}, got {}", data.len()),
+            ));
         }
         Ok(Image { width, height, channels, data })
     }
@@ -88,7 +94,10 @@ impl Image {
         if (self.width, self.height, self.channels) != (width, height, channels) {
             return Err(Error::invalid(
                 field,
-                format!("a {width}×{height} image with {channels} channels, got {}×{}×{}", self.width, self.height, self.channels),
+                format!(
+                    "a {width}×{height} image with {channels} channels, got {}×{}×{}",
+                    self.width, self.height, self.channels
+                ),
             ));
         }
         Ok(())
@@ -113,7 +122,11 @@ impl Image {
             image::DynamicImage::ImageRgb16(b) => b.into_raw().into_iter().map(|v| v as f32 / 65535.0).collect(),
             image::DynamicImage::ImageRgba16(b) => b.into_raw().into_iter().map(|v| v as f32 / 65535.0).collect(),
             other => {
-                return Err(Error::format(path, "PNG colour type", format!("8- or 16-bit grey/RGB(A), got {:?}", other.color())));
+                return Err(Error::format(
+                    path,
+                    "PNG colour type",
+                    format!("8- or 16-bit grey/RGB(A), got {:?}", other.color()),
+                ));
             }
         };
         Image::new(w, h, channels, data).map_err(|e| e.in_file(path))

@@ -58,7 +58,9 @@ pub struct Topology {
     pub boundary_edges: usize,
     /// Edges used by more than two triangles.
     pub non_manifold_edges: usize,
-    /// Connected components (vertices linked by triangle edges).
+    /// Connected components: groups of triangles linked through edges shared by exactly
+    /// two triangles (parts that touch only at a vertex or a non-manifold edge count
+    /// separately, as in trimesh's `split`).
     pub components: usize,
     /// V − E + F.
     pub euler: i64,
@@ -104,10 +106,16 @@ impl Mesh {
         let n = positions.len() as u32;
         for (i, t) in triangles.iter().enumerate() {
             if let Some(&bad) = t.iter().find(|&&v| v >= n) {
-                return Err(Error::invalid(format!("triangles[{i}]"), format!("vertex indices below {n}, got {bad} in {t:?}")));
+                return Err(Error::invalid(
+                    format!("triangles[{i}]"),
+                    format!("vertex indices below {n}, got {bad} in {t:?}"),
+                ));
             }
             if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
-                return Err(Error::invalid(format!("triangles[{i}]"), format!("three distinct vertex indices, got {t:?}")));
+                return Err(Error::invalid(
+                    format!("triangles[{i}]"),
+                    format!("three distinct vertex indices, got {t:?}"),
+                ));
             }
         }
         Ok(Mesh { positions, triangles, normals: None, uvs: None, colours: None, texture: None })
@@ -151,7 +159,10 @@ impl Mesh {
             return Err(Error::invalid("texture", "a mesh with uvs before a texture is attached"));
         }
         if !matches!(texture.channels(), 3 | 4) {
-            return Err(Error::invalid("texture", format!("an RGB or RGBA image, got {} channels", texture.channels())));
+            return Err(Error::invalid(
+                "texture",
+                format!("an RGB or RGBA image, got {} channels", texture.channels()),
+            ));
         }
         self.texture = Some(texture);
         Ok(self)
@@ -275,34 +286,28 @@ impl Mesh {
     /// Topology of the mesh *as stored* (vertices with identical positions are distinct;
     /// see [`Mesh::merge_by_position`] for the analysis most tools report).
     pub fn topology(&self) -> Topology {
-        let mut edges: Vec<[u32; 2]> = self.triangles.iter().flat_map(|t| triangle_edges(*t)).collect();
-        edges.sort_unstable();
+        // Every (edge, triangle) incidence, sorted so equal edges are adjacent.
+        let mut incidences: Vec<([u32; 2], u32)> = Vec::with_capacity(3 * self.triangles.len());
+        for (t, tri) in self.triangles.iter().enumerate() {
+            incidences.extend(triangle_edges(*tri).map(|e| (e, t as u32)));
+        }
+        incidences.sort_unstable();
         let (mut unique, mut boundary, mut non_manifold) = (0, 0, 0);
-        let mut i = 0;
-        while i < edges.len() {
-            let mut j = i + 1;
-            while j < edges.len() && edges[j] == edges[i] {
-                j += 1;
-            }
+        let mut faces = DisjointSets::new(self.triangles.len());
+        for group in incidences.chunk_by(|a, b| a.0 == b.0) {
             unique += 1;
-            match j - i {
+            match group.len() {
                 1 => boundary += 1,
-                2 => {}
+                2 => faces.union(group[0].1, group[1].1),
                 _ => non_manifold += 1,
             }
-            i = j;
         }
         let mut used = vec![false; self.positions.len()];
-        let mut sets = DisjointSets::new(self.positions.len());
-        for t in &self.triangles {
-            for &v in t {
-                used[v as usize] = true;
-            }
-            sets.union(t[0], t[1]);
-            sets.union(t[1], t[2]);
+        for &v in self.triangles.iter().flatten() {
+            used[v as usize] = true;
         }
         let vertices = used.iter().filter(|&&u| u).count();
-        let components = (0..self.positions.len()).filter(|&v| used[v] && sets.find(v as u32) == v as u32).count();
+        let components = (0..self.triangles.len() as u32).filter(|&t| faces.find(t) == t).count();
         Topology {
             vertices,
             edges: unique,
@@ -397,7 +402,14 @@ impl Mesh {
     #[allow(clippy::type_complexity)]
     pub fn into_parts(
         self,
-    ) -> (Vec<[f32; 3]>, Vec<[u32; 3]>, Option<Vec<[f32; 3]>>, Option<Vec<[f32; 2]>>, Option<Vec<[f32; 3]>>, Option<Image>) {
+    ) -> (
+        Vec<[f32; 3]>,
+        Vec<[u32; 3]>,
+        Option<Vec<[f32; 3]>>,
+        Option<Vec<[f32; 2]>>,
+        Option<Vec<[f32; 3]>>,
+        Option<Image>,
+    ) {
         (self.positions, self.triangles, self.normals, self.uvs, self.colours, self.texture)
     }
 }
@@ -417,7 +429,7 @@ pub fn triangle_edges(t: [u32; 3]) -> [[u32; 2]; 3] {
     [e(t[0], t[1]), e(t[1], t[2]), e(t[2], t[0])]
 }
 
-/// Union-find over vertex indices with path halving.
+/// Union-find over indices with path halving.
 struct DisjointSets {
     parent: Vec<u32>,
 }
@@ -488,7 +500,8 @@ mod tests {
     #[test]
     fn merge_joins_seams() {
         // Two triangles of a square stored with duplicated seam vertices.
-        let p = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [-0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]];
+        let p =
+            vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [-0.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]];
         let m = Mesh::new(p, vec![[0, 1, 2], [3, 4, 5]]).unwrap();
         assert_eq!(m.topology().components, 2);
         let (merged, remap) = m.merge_by_position();

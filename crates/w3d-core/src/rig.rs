@@ -52,7 +52,14 @@ pub fn orbit_position(azimuth: f32, elevation: f32, distance: f32) -> Vec3 {
 }
 
 impl ViewRig {
-    fn orbit(name: &str, names: &[String], azimuths_deg: &[f32], elevation_deg: f32, distance: f32, projection: Projection) -> Self {
+    fn orbit(
+        name: &str,
+        names: &[String],
+        azimuths_deg: &[f32],
+        elevation_deg: f32,
+        distance: f32,
+        projection: Projection,
+    ) -> Self {
         let views = names
             .iter()
             .zip(azimuths_deg)
@@ -101,7 +108,10 @@ impl ViewRig {
             "wonder3d-ortho" => Ok(Self::wonder3d_ortho()),
             "wonder3d-persp" => Ok(Self::wonder3d_persp()),
             "syncdreamer16" => Ok(Self::syncdreamer16()),
-            _ => Err(Error::invalid("rig", format!("one of wonder3d-ortho, wonder3d-persp, syncdreamer16; got {name:?}"))),
+            _ => Err(Error::invalid(
+                "rig",
+                format!("one of wonder3d-ortho, wonder3d-persp, syncdreamer16; got {name:?}"),
+            )),
         }
     }
 
@@ -130,7 +140,10 @@ impl ViewRig {
                 return Err(Error::invalid(format!("views[{i}].name"), "a non-empty name without path separators"));
             }
             if self.views[..i].iter().any(|o| o.name == v.name) {
-                return Err(Error::invalid(format!("views[{i}].name"), format!("a unique name, {:?} is repeated", v.name)));
+                return Err(Error::invalid(
+                    format!("views[{i}].name"),
+                    format!("a unique name, {:?} is repeated", v.name),
+                ));
             }
             v.camera.validate().map_err(|e| match e {
                 Error::Invalid { field, expected } => Error::invalid(format!("views[{i}].{field}"), expected),
@@ -151,8 +164,9 @@ impl ViewRig {
     pub fn load_json(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
         let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-        let rig: ViewRig = serde_json::from_str(&text)
-            .map_err(|e| Error::format(path, format!("line {} column {}", e.line(), e.column()), format!("a camera rig ({e})")))?;
+        let rig: ViewRig = serde_json::from_str(&text).map_err(|e| {
+            Error::format(path, format!("line {} column {}", e.line(), e.column()), format!("a camera rig ({e})"))
+        })?;
         rig.validate().map_err(|e| e.in_file(path))?;
         Ok(rig)
     }

@@ -58,12 +58,18 @@ impl ViewSet {
     /// the common size and the documented channel count.
     pub fn validate(&self, rig: &ViewRig) -> Result<()> {
         if self.views.len() != rig.views.len() {
-            return Err(Error::invalid("views", format!("{} views to match the rig, got {}", rig.views.len(), self.views.len())));
+            return Err(Error::invalid(
+                "views",
+                format!("{} views to match the rig, got {}", rig.views.len(), self.views.len()),
+            ));
         }
         let (w, h) = (self.width(), self.height());
         for (i, (v, r)) in self.views.iter().zip(&rig.views).enumerate() {
             if v.name != r.name {
-                return Err(Error::invalid(format!("views[{i}].name"), format!("{:?} as in the rig, got {:?}", r.name, v.name)));
+                return Err(Error::invalid(
+                    format!("views[{i}].name"),
+                    format!("{:?} as in the rig, got {:?}", r.name, v.name),
+                ));
             }
             v.normal.expect_shape(&format!("views[{i}].normal"), w, h, 3)?;
             v.mask.expect_shape(&format!("views[{i}].mask"), w, h, 1)?;
@@ -91,7 +97,8 @@ impl ViewSet {
                 src.chunks_exact(3).zip(m).flat_map(|(p, &a)| [f(p[0]), f(p[1]), f(p[2]), a]).collect()
             };
             let (w, h) = (v.mask.width(), v.mask.height());
-            Image::new(w, h, 4, rgba(&|x| (x + 1.0) * 0.5, n))?.write_png(dir.join(format!("normal_{}.png", v.name)))?;
+            Image::new(w, h, 4, rgba(&|x| (x + 1.0) * 0.5, n))?
+                .write_png(dir.join(format!("normal_{}.png", v.name)))?;
             Image::new(w, h, 4, rgba(&|x| x, n))?.write_exr(dir.join(format!("normal_{}.exr", v.name)))?;
             v.mask.write_png(dir.join(format!("mask_{}.png", v.name)))?;
             if let Some(c) = &v.colour {
@@ -129,7 +136,13 @@ impl ViewSet {
                 match img.channels() {
                     3 => Some(img),
                     4 => Some(split_rgba(&img, |x| x).0),
-                    c => return Err(Error::format(&colour_path, "PNG channels", format!("RGB or RGBA, got {c} channels"))),
+                    c => {
+                        return Err(Error::format(
+                            &colour_path,
+                            "PNG channels",
+                            format!("RGB or RGBA, got {c} channels"),
+                        ));
+                    }
                 }
             } else {
                 None

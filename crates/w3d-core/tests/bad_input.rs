@@ -61,7 +61,11 @@ fn obj_index_out_of_range_is_rejected() {
 fn missing_mtl_texture_names_the_texture() {
     let dir = tempfile::tempdir().unwrap();
     write(dir.path(), "m.mtl", b"newmtl a\nmap_Kd gone.png\n");
-    let p = write(dir.path(), "m.obj", b"mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nusemtl a\nf 1/1 2/2 3/3\n");
+    let p = write(
+        dir.path(),
+        "m.obj",
+        b"mtllib m.mtl\nv 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nusemtl a\nf 1/1 2/2 3/3\n",
+    );
     let msg = message_for(load_mesh(&p).unwrap_err(), &p);
     assert!(msg.contains("map_Kd") && msg.contains("gone.png"), "{msg}");
 }

@@ -72,9 +72,8 @@ fn view_set_round_trips_through_png_and_exr() {
         .enumerate()
         .map(|(k, v)| {
             let n = (w * h) as usize;
-            let normal: Vec<f32> = (0..n)
-                .flat_map(|i| Vec3::new(i as f32 - 3.0, k as f32 + 0.5, 1.0).normalize().to_array())
-                .collect();
+            let normal: Vec<f32> =
+                (0..n).flat_map(|i| Vec3::new(i as f32 - 3.0, k as f32 + 0.5, 1.0).normalize().to_array()).collect();
             let mask: Vec<f32> = (0..n).map(|i| (i % 2) as f32).collect();
             let colour: Vec<f32> = (0..3 * n).map(|i| (i % 256) as f32 / 255.0).collect();
             let depth: Vec<f32> = (0..n).map(|i| 1.0 + i as f32 * 0.01).collect();
@@ -110,8 +109,11 @@ fn camera_strategy() -> impl Strategy<Value = Camera> {
     (0.0f32..360.0, -80.0f32..80.0, 0.8f32..5.0, prop::bool::ANY, 0.2f32..2.0, 0.3f32..2.5).prop_map(
         |(az, el, d, ortho, half, fov)| {
             let eye = w3d_core::rig::orbit_position(az.to_radians(), el.to_radians(), d);
-            let projection =
-                if ortho { Projection::Orthographic { half_height: half } } else { Projection::Perspective { fov_y: fov } };
+            let projection = if ortho {
+                Projection::Orthographic { half_height: half }
+            } else {
+                Projection::Perspective { fov_y: fov }
+            };
             Camera::look_at(eye, Vec3::new(0.1, -0.05, 0.02), Vec3::Y, projection).unwrap()
         },
     )

@@ -34,7 +34,14 @@ pub fn read_gltf(path: impl AsRef<Path>) -> Result<Mesh> {
                 if primitive.mode() != gltf::mesh::Mode::Triangles {
                     continue;
                 }
-                acc.add(path, &primitive, &buffers, &images, world, &format!("meshes[{}].primitives[{p}]", mesh.index()))?;
+                acc.add(
+                    path,
+                    &primitive,
+                    &buffers,
+                    &images,
+                    world,
+                    &format!("meshes[{}].primitives[{p}]", mesh.index()),
+                )?;
             }
         }
         stack.extend(node.children().map(|c| (c, world)));
@@ -75,7 +82,7 @@ impl Accumulator {
             Some(i) => i.into_u32().collect(),
             None => (0..n).collect(),
         };
-        if indices.len() % 3 != 0 {
+        if !indices.len().is_multiple_of(3) {
             return Err(Error::format(path, format!("{field}.indices"), "a multiple of 3 indices for triangles"));
         }
         for (k, t) in indices.chunks_exact(3).enumerate() {
@@ -86,9 +93,9 @@ impl Accumulator {
         }
         let first = self.primitives == 0;
         let normal_matrix = Mat3::from_mat4(world).inverse().transpose();
-        let normals = reader.read_normals().map(|it| {
-            it.map(|v| (normal_matrix * Vec3::from(v)).normalize_or_zero().to_array()).collect::<Vec<_>>()
-        });
+        let normals = reader
+            .read_normals()
+            .map(|it| it.map(|v| (normal_matrix * Vec3::from(v)).normalize_or_zero().to_array()).collect::<Vec<_>>());
         merge(&mut self.normals, normals, first);
         let uvs = reader.read_tex_coords(0).map(|t| t.into_f32().map(|[u, v]| [u, 1.0 - v]).collect::<Vec<_>>());
         merge(&mut self.uvs, uvs, first);
@@ -139,7 +146,9 @@ fn decode_image(path: &Path, data: &gltf::image::Data) -> Result<Image> {
         Format::R8G8B8A8 => (4, 1),
         Format::R16G16B16 => (3, 2),
         Format::R16G16B16A16 => (4, 2),
-        other => return Err(Error::format(path, "base-colour texture", format!("an 8/16-bit RGB(A) image, got {other:?}"))),
+        other => {
+            return Err(Error::format(path, "base-colour texture", format!("an 8/16-bit RGB(A) image, got {other:?}")));
+        }
     };
     let values: Vec<f32> = if bytes_per == 1 {
         data.pixels.iter().map(|&v| v as f32 / 255.0).collect()
@@ -161,7 +170,7 @@ impl BinBuilder {
     fn view(&mut self, data: &[u8], target: Option<u32>) -> usize {
         let offset = self.bytes.len();
         self.bytes.extend_from_slice(data);
-        while self.bytes.len() % 4 != 0 {
+        while !self.bytes.len().is_multiple_of(4) {
             self.bytes.push(0);
         }
         let mut view = json!({ "buffer": 0, "byteOffset": offset, "byteLength": data.len() });
@@ -241,7 +250,8 @@ pub(crate) fn encode_glb(mesh: &Mesh) -> Result<Vec<u8>> {
         "nodes": [{ "mesh": 0 }],
         "meshes": [{ "primitives": [{ "attributes": attributes, "indices": 0, "material": 0, "mode": 4 }] }],
     });
-    let mut material = json!({ "pbrMetallicRoughness": { "metallicFactor": 0.0, "roughnessFactor": 1.0 }, "doubleSided": false });
+    let mut material =
+        json!({ "pbrMetallicRoughness": { "metallicFactor": 0.0, "roughnessFactor": 1.0 }, "doubleSided": false });
     if let (Some(texture), Some(_)) = (mesh.texture(), mesh.uvs()) {
         let png = texture.encode_png()?;
         let view = bin.view(&png, None);
@@ -256,7 +266,7 @@ pub(crate) fn encode_glb(mesh: &Mesh) -> Result<Vec<u8>> {
     root["buffers"] = json!([{ "byteLength": bin.bytes.len() }]);
 
     let mut json_bytes = serde_json::to_vec(&root).expect("glTF JSON always serialises");
-    while json_bytes.len() % 4 != 0 {
+    while !json_bytes.len().is_multiple_of(4) {
         json_bytes.push(b' ');
     }
     let total = 12 + 8 + json_bytes.len() + 8 + bin.bytes.len();

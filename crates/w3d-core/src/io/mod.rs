@@ -36,7 +36,9 @@ pub fn save_mesh(path: impl AsRef<Path>, mesh: &Mesh) -> Result<()> {
         "obj" => write_obj(path, mesh),
         "ply" => write_ply(path, mesh),
         "glb" => write_glb(path, mesh),
-        other => Err(Error::format(path, "file extension", format!("one of .obj, .ply, .glb for writing, got {other:?}"))),
+        other => {
+            Err(Error::format(path, "file extension", format!("one of .obj, .ply, .glb for writing, got {other:?}")))
+        }
     }
 }
 

@@ -11,15 +11,17 @@ use crate::{Error, Mesh, Result};
 /// its normals, texture coordinates, vertex colours and — when the MTL gives one — the
 /// diffuse texture (`map_Kd`) of the first material that has it.
 ///
-/// Vertices are split where normals or uvs differ (one index buffer). A `mtllib` that
+/// Vertices are split where normals or uvs differ (one index buffer) and numbered in the
+/// order the faces first use them, so reading an OBJ that this crate wrote gives back the
+/// same vertex order; other files may be renumbered (the geometry is the same). A `mtllib` that
 /// cannot be read, or a `map_Kd` texture that is missing, is an error naming that file.
 pub fn read_obj(path: impl AsRef<Path>) -> Result<Mesh> {
     let path = path.as_ref();
     // tobj reports a missing file as a generic error; check first for a clear message.
     std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
     let options = tobj::LoadOptions { single_index: true, triangulate: true, ignore_points: true, ignore_lines: true };
-    let (models, materials) =
-        tobj::load_obj(path, &options).map_err(|e| Error::format(path, "OBJ data", format!("a valid OBJ file ({e})")))?;
+    let (models, materials) = tobj::load_obj(path, &options)
+        .map_err(|e| Error::format(path, "OBJ data", format!("a valid OBJ file ({e})")))?;
     let materials = materials.map_err(|e| Error::format(path, "mtllib", format!("a readable MTL file ({e})")))?;
 
     let mut positions: Vec<[f32; 3]> = Vec::new();
@@ -41,7 +43,11 @@ pub fn read_obj(path: impl AsRef<Path>) -> Result<Mesh> {
         colours.extend(m.vertex_color.chunks_exact(3).map(|c| [c[0], c[1], c[2]]));
         for (k, t) in m.indices.chunks_exact(3).enumerate() {
             if t.iter().any(|&i| i as usize >= n) {
-                return Err(Error::format(path, format!("object {:?} face {k}", model.name), format!("vertex indices that exist (1..={n})")));
+                return Err(Error::format(
+                    path,
+                    format!("object {:?} face {k}", model.name),
+                    format!("vertex indices that exist (1..={n})"),
+                ));
             }
             triangles.push([t[0] + base, t[1] + base, t[2] + base]);
         }
@@ -68,7 +74,11 @@ pub fn read_obj(path: impl AsRef<Path>) -> Result<Mesh> {
         if mesh.uvs().is_some() {
             let texture = Image::read_png(&texture_path)?;
             if !matches!(texture.channels(), 3 | 4) {
-                return Err(Error::format(&texture_path, "PNG channels", format!("an RGB or RGBA texture, got {} channels", texture.channels())));
+                return Err(Error::format(
+                    &texture_path,
+                    "PNG channels",
+                    format!("an RGB or RGBA texture, got {} channels", texture.channels()),
+                ));
             }
             mesh = mesh.with_texture(texture)?;
         }
@@ -87,7 +97,8 @@ pub fn write_obj(path: impl AsRef<Path>, mesh: &Mesh) -> Result<()> {
         texture.write_png(&png)?;
         let mtl = path.with_file_name(format!("{stem}.mtl"));
         write_atomic(&mtl, |w| {
-            write!(w, "newmtl material0\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\nmap_Kd {stem}.png\n").map_err(|e| Error::io(&mtl, e))
+            write!(w, "newmtl material0\nKa 1 1 1\nKd 1 1 1\nKs 0 0 0\nillum 1\nmap_Kd {stem}.png\n")
+                .map_err(|e| Error::io(&mtl, e))
         })?;
     }
     write_atomic(path, |w| {

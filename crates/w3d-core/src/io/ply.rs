@@ -160,7 +160,9 @@ pub fn read_ply(path: impl AsRef<Path>) -> Result<Mesh> {
         Encoding::Ascii => Body::Ascii {
             tokens: std::str::from_utf8(body_bytes).map_err(|_| bad("body", "ASCII numbers"))?.split_ascii_whitespace(),
         },
-        Encoding::Little | Encoding::Big => Body::Binary { bytes: body_bytes, pos: 0, little: encoding == Encoding::Little },
+        Encoding::Little | Encoding::Big => {
+            Body::Binary { bytes: body_bytes, pos: 0, little: encoding == Encoding::Little }
+        }
     };
 
     let mut positions: Vec<[f32; 3]> = Vec::new();
@@ -187,7 +189,12 @@ pub fn read_ply(path: impl AsRef<Path>) -> Result<Mesh> {
             None
         };
         let face_list = (element.name == "face")
-            .then(|| element.properties.iter().position(|p| p.list.is_some() && (p.name == "vertex_indices" || p.name == "vertex_index")))
+            .then(|| {
+                element
+                    .properties
+                    .iter()
+                    .position(|p| p.list.is_some() && (p.name == "vertex_indices" || p.name == "vertex_index"))
+            })
             .flatten();
         for row in 0..element.count {
             let at = || format!("element {} row {row}", element.name);
@@ -195,7 +202,9 @@ pub fn read_ply(path: impl AsRef<Path>) -> Result<Mesh> {
             let mut face: Vec<u32> = Vec::new();
             for (k, p) in element.properties.iter().enumerate() {
                 match p.list {
-                    None => values.push(body.read(p.value).ok_or_else(|| bad(&at(), &format!("a value for property {}", p.name)))?),
+                    None => values.push(
+                        body.read(p.value).ok_or_else(|| bad(&at(), &format!("a value for property {}", p.name)))?,
+                    ),
                     Some(count_type) => {
                         values.push(f64::NAN);
                         let count = body.read(count_type).ok_or_else(|| bad(&at(), "a list length"))?;
@@ -264,7 +273,10 @@ pub fn write_ply(path: impl AsRef<Path>, mesh: &Mesh) -> Result<()> {
     let path = path.as_ref();
     write_atomic(path, |w| {
         let io = |e| Error::io(path, e);
-        let mut header = format!("ply\nformat binary_little_endian 1.0\ncomment written by wonder3d-rs\nelement vertex {}\n", mesh.vertex_count());
+        let mut header = format!(
+            "ply\nformat binary_little_endian 1.0\ncomment written by wonder3d-rs\nelement vertex {}\n",
+            mesh.vertex_count()
+        );
         header += "property float x\nproperty float y\nproperty float z\n";
         if mesh.normals().is_some() {
             header += "property float nx\nproperty float ny\nproperty float nz\n";
@@ -275,7 +287,8 @@ pub fn write_ply(path: impl AsRef<Path>, mesh: &Mesh) -> Result<()> {
         if mesh.colours().is_some() {
             header += "property uchar red\nproperty uchar green\nproperty uchar blue\n";
         }
-        header += &format!("element face {}\nproperty list uchar uint vertex_indices\nend_header\n", mesh.triangle_count());
+        header +=
+            &format!("element face {}\nproperty list uchar uint vertex_indices\nend_header\n", mesh.triangle_count());
         w.write_all(header.as_bytes()).map_err(io)?;
         for i in 0..mesh.vertex_count() {
             let mut floats: Vec<f32> = mesh.positions()[i].to_vec();
