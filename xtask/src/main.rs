@@ -2,6 +2,13 @@
 //!
 //! - `cargo xtask deny`: runs `cargo deny check licenses bans sources` (advisories need a
 //!   network), installing cargo-deny 0.20.2 into `target/tools` first if it is not on `PATH`.
+//! - `cargo xtask bench SUITE [-- CRITERION ARGS]`: runs the criterion bench `SUITE` of the
+//!   crate `w3d-SUITE` (e.g. `raster`, `remesh`, `eval`), then writes the medians of the
+//!   benchmarks it ran to `target/bench/SUITE.json` and prints them as a markdown table for
+//!   `docs/benchmarks.md`.
+//! - `cargo xtask fixtures eval`: regenerates the peer-parity fixtures of `w3d-eval`
+//!   (Python: a venv in `target/tools/evalvenv` with trimesh, point-cloud-utils, mesh2sdf,
+//!   scikit-image from PyPI). The outputs are committed; tests never need Python.
 //! - `cargo xtask validate-glb FILE...`: runs the Khronos glTF validator (npm package
 //!   `gltf-validator`, installed into `target/tools/node` on first use; needs `node` and
 //!   `npm`) and fails if any file has an error.
@@ -22,6 +29,19 @@ struct Cli {
 enum Task {
     /// Check licences, duplicate crates and sources with cargo-deny (installed on demand).
     Deny,
+    /// Run a criterion suite and collect its medians into target/bench/SUITE.json.
+    Bench {
+        /// Suite name: the bench target `SUITE` of the crate `w3d-SUITE`.
+        suite: String,
+        /// Extra arguments passed to criterion (e.g. a filter, `--measurement-time 5`).
+        #[arg(last = true)]
+        criterion_args: Vec<String>,
+    },
+    /// Regenerate committed test fixtures with the Python peer tools.
+    Fixtures {
+        /// Which fixtures: `eval`.
+        which: String,
+    },
     /// Validate GLB / glTF files with the Khronos glTF validator (installed on demand).
     ValidateGlb {
         /// Files to validate.
@@ -66,6 +86,97 @@ fn deny() -> Result<(), String> {
     ]))
 }
 
+fn target_dir() -> PathBuf {
+    std::env::var_os("CARGO_TARGET_DIR").map(PathBuf::from).unwrap_or_else(|| workspace_root().join("target"))
+}
+
+/// Every `new/estimates.json` under `dir` written after `since`, with its benchmark id.
+fn fresh_estimates(dir: &Path, since: std::time::SystemTime, out: &mut Vec<(String, PathBuf)>) {
+    let Ok(entries) = std::fs::read_dir(dir) else { return };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        if path.is_dir() {
+            fresh_estimates(&path, since, out);
+        } else if path.ends_with("new/estimates.json")
+            && entry.metadata().and_then(|m| m.modified()).is_ok_and(|t| t >= since)
+        {
+            let bench = path.with_file_name("benchmark.json");
+            let id = std::fs::read_to_string(&bench)
+                .ok()
+                .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+                .and_then(|v| v["full_id"].as_str().map(String::from))
+                .unwrap_or_else(|| path.display().to_string());
+            out.push((id, path));
+        }
+    }
+}
+
+fn cpu_model() -> String {
+    std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|t| {
+            t.lines()
+                .find(|l| l.starts_with("model name"))
+                .map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string())
+        })
+        .unwrap_or_else(|| "unknown CPU".into())
+}
+
+fn bench(suite: &str, criterion_args: &[String]) -> Result<(), String> {
+    let start = std::time::SystemTime::now();
+    let krate = format!("w3d-{suite}");
+    let mut cmd = Command::new("cargo");
+    cmd.current_dir(workspace_root()).args(["bench", "-p", &krate, "--bench", suite, "--"]).args(criterion_args);
+    run(&mut cmd)?;
+    let mut found = Vec::new();
+    fresh_estimates(&target_dir().join("criterion"), start, &mut found);
+    found.sort();
+    let mut rows = Vec::new();
+    for (id, path) in &found {
+        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let v: serde_json::Value = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+        let ms = |k: &str| v[k]["point_estimate"].as_f64().map(|ns| ns / 1e6);
+        rows.push(serde_json::json!({ "id": id, "median_ms": ms("median"), "mean_ms": ms("mean") }));
+    }
+    let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
+    let report = serde_json::json!({
+        "suite": suite,
+        "command": format!("cargo xtask bench {suite} {}", criterion_args.join(" ")).trim_end().to_string(),
+        "machine": { "cpu": cpu_model(), "cores": cores },
+        "results": rows,
+    });
+    let out_dir = target_dir().join("bench");
+    std::fs::create_dir_all(&out_dir).map_err(|e| format!("{}: {e}", out_dir.display()))?;
+    let out = out_dir.join(format!("{suite}.json"));
+    std::fs::write(&out, serde_json::to_string_pretty(&report).expect("json"))
+        .map_err(|e| format!("{}: {e}", out.display()))?;
+    println!("\n{} ({} cores), `{}`\n", cpu_model(), cores, report["command"].as_str().unwrap_or(""));
+    println!("| benchmark | median (ms) |\n|---|---|");
+    for r in &rows {
+        println!("| {} | {:.3} |", r["id"].as_str().unwrap_or(""), r["median_ms"].as_f64().unwrap_or(f64::NAN));
+    }
+    println!("\nwrote {}", out.display());
+    Ok(())
+}
+
+/// Python packages the eval fixture script needs.
+const EVAL_FIXTURE_PACKAGES: &[&str] =
+    &["numpy", "scipy", "pillow", "trimesh", "point-cloud-utils", "mesh2sdf", "scikit-image"];
+
+fn fixtures(which: &str) -> Result<(), String> {
+    if which != "eval" {
+        return Err(format!("unknown fixture set {which:?}; expected `eval`"));
+    }
+    let root = workspace_root();
+    let venv = root.join("target").join("tools").join("evalvenv");
+    let python = venv.join("bin").join("python");
+    if !python.is_file() {
+        run(Command::new("python3").args(["-m", "venv"]).arg(&venv))?;
+        run(Command::new(&python).args(["-m", "pip", "install", "--quiet"]).args(EVAL_FIXTURE_PACKAGES))?;
+    }
+    run(Command::new(&python).current_dir(&root).arg("crates/w3d-eval/fixtures/make_fixtures.py"))
+}
+
 /// The pinned validator release and the script that runs it on each file.
 const GLTF_VALIDATOR: &str = "gltf-validator@2.0.0-dev.3.10";
 const VALIDATE_SCRIPT: &str = r#"import validator from 'gltf-validator';
@@ -99,6 +210,8 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Task::Deny => deny(),
         Task::ValidateGlb { files } => validate_glb(&files),
+        Task::Fixtures { which } => fixtures(&which),
+        Task::Bench { suite, criterion_args } => bench(&suite, &criterion_args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -3,9 +3,13 @@
 //! ```text
 //! wonder3d info assets/spot.obj          # counts, bbox, watertight, components, genus
 //! wonder3d info assets/spot.obj --json   # the same as one JSON object
+//! wonder3d render assets/spot.obj --rig wonder3d-ortho --size 256 --out views/spot
+//! wonder3d eval pred.glb assets/spot.obj --json  # chamfer, fscore_0.01, iou_64, …
 //! ```
 
+mod eval;
 mod info;
+mod render;
 
 use std::process::ExitCode;
 
@@ -22,12 +26,18 @@ struct Cli {
 enum Command {
     /// Print a mesh's counts, bounding box and topology (merged by position).
     Info(info::InfoArgs),
+    /// Render oracle views of a mesh (normals, colours, masks, depth, cameras.json).
+    Render(render::RenderArgs),
+    /// Compare a predicted mesh with a ground truth (Chamfer, F-score, volume IoU, normals).
+    Eval(eval::EvalArgs),
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Info(args) => info::run(&args),
+        Command::Render(args) => render::run(&args),
+        Command::Eval(args) => eval::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -21,3 +21,10 @@ pub use w3d_core as core;
 pub use w3d_core::{
     Camera, Error, Image, Mesh, Projection, Result, RigView, ViewImages, ViewRig, ViewSet, load_mesh, save_mesh,
 };
+/// Evaluation metrics: Chamfer, F-score, volume IoU, normal consistency, PSNR / SSIM
+/// (the `w3d-eval` crate).
+pub use w3d_eval as eval;
+/// The differentiable CPU rasteriser and render helpers (the `w3d-raster` crate).
+pub use w3d_raster as raster;
+/// Continuous remeshing: the mesh optimiser and remesh operations (the `w3d-remesh` crate).
+pub use w3d_remesh as remesh;

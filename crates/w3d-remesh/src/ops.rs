@@ -1,0 +1,560 @@
+//! The remesh operations on plain arrays: collapse, split, pack and flip, and the
+//! `remesh` pass that chains them (reference part A.3–A.8).
+//!
+//! Triangles are `[u32; 3]`, counter-clockwise seen from outside; deleted triangles are
+//! marked by an explicit `alive` mask (no dummy vertex or face). Every tie is broken by
+//! index, and the only random choice (which edge of a flagged face to collapse) is a hash
+//! of a seed and the face index, so the same input and seed give the same bytes.
+
+use glam::Vec3;
+
+use crate::edges::{EdgeTable, NONE};
+use crate::rows::{VertexRows, mean3};
+
+/// Settings of one [`remesh`] pass (the parts of [`crate::RemeshOptions`] it uses).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RemeshParams {
+    /// A face is "small" (and collapsed) when its area is below
+    /// `area_ratio · (mean min length of its corners)²` (reference 0.5).
+    pub area_ratio: f32,
+    /// Probability that a flagged face collapses its shortest edge; otherwise the middle or
+    /// the longest edge, each with half the rest (reference 0.8; 1 = always the shortest).
+    pub shortest_probability: f32,
+    /// No edge is split once the mesh has this many vertices (reference 10⁶).
+    pub max_vertices: usize,
+    /// Run the valence-improving edge flips after split and pack.
+    pub flip: bool,
+}
+
+impl Default for RemeshParams {
+    fn default() -> Self {
+        RemeshParams { area_ratio: 0.5, shortest_probability: 0.8, max_vertices: 1_000_000, flip: true }
+    }
+}
+
+/// What one [`remesh`] pass did.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct RemeshStats {
+    /// Edges collapsed.
+    pub collapsed: usize,
+    /// Edges split.
+    pub split: usize,
+    /// Edges flipped.
+    pub flipped: usize,
+    /// Vertices after the pass.
+    pub vertices: usize,
+    /// Triangles after the pass.
+    pub triangles: usize,
+}
+
+/// A flip may bend the two faces of an edge up to this cosine of their normals' angle
+/// (about 26°), or up to how bent they were before if that was more.
+const MAX_FLIP_BEND_COS: f32 = 0.9;
+
+fn v3(p: [f32; 3]) -> Vec3 {
+    Vec3::from(p)
+}
+
+/// Unnormalised face normals `cross(p1 − p0, p2 − p0)` (length = twice the area); zero for
+/// deleted faces.
+pub fn face_normals(positions: &[[f32; 3]], faces: &[[u32; 3]], alive: &[bool]) -> Vec<Vec3> {
+    faces
+        .iter()
+        .zip(alive)
+        .map(|(t, &live)| {
+            if !live {
+                return Vec3::ZERO;
+            }
+            let [a, b, c] = t.map(|i| v3(positions[i as usize]));
+            (b - a).cross(c - a)
+        })
+        .collect()
+}
+
+/// Unit vertex normals: the area-weighted sum of the adjacent face normals, divided by
+/// `max(|sum|, 1e-6)`.
+pub fn vertex_normals(num_vertices: usize, faces: &[[u32; 3]], alive: &[bool], face_normals: &[Vec3]) -> Vec<Vec3> {
+    let mut sum = vec![Vec3::ZERO; num_vertices];
+    for ((t, &live), n) in faces.iter().zip(alive).zip(face_normals) {
+        if live {
+            for &v in t {
+                sum[v as usize] += *n;
+            }
+        }
+    }
+    for n in &mut sum {
+        *n /= n.length().max(1e-6);
+    }
+    sum
+}
+
+/// 64-bit mix (SplitMix64 finaliser).
+fn mix(mut z: u64) -> u64 {
+    z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// Flags the edges that flagged faces want collapsed (reference A.5a).
+///
+/// A face is flagged when it is **flipped** (its normal points against the sum of its
+/// corners' vertex normals) or **small** (area below `area_ratio · m²`, `m` the mean of
+/// `min_edge_length` over its corners). A flagged face picks its shortest edge with
+/// probability `shortest_probability`, else its middle or longest edge (equal odds); the
+/// draw is a hash of `seed` and the face index. Ties in length keep local edge order.
+#[allow(clippy::too_many_arguments)]
+pub fn face_collapse_flags(
+    positions: &[[f32; 3]],
+    faces: &[[u32; 3]],
+    alive: &[bool],
+    table: &EdgeTable,
+    edge_length: &[f32],
+    min_edge_length: &[f32],
+    params: &RemeshParams,
+    seed: u64,
+) -> Vec<bool> {
+    let normals = face_normals(positions, faces, alive);
+    let vnormals = vertex_normals(positions.len(), faces, alive, &normals);
+    let p = params.shortest_probability;
+    // Draws r in [0, randlim) and takes position min(r, 2) of the edges sorted by length,
+    // longest first: position 2 (the shortest) has probability 1 − 2 / randlim = p.
+    let randlim = if p < 1.0 { (2.0 / (1.0 - f64::from(p))).round().max(1.0) as u64 } else { 0 };
+    let mut flags = vec![false; table.edges.len()];
+    for (f, t) in faces.iter().enumerate() {
+        if !alive[f] {
+            continue;
+        }
+        let n = normals[f];
+        let reference: Vec3 = t.iter().map(|&v| vnormals[v as usize]).sum();
+        let flipped = n.dot(reference) < 0.0;
+        let m = t.iter().map(|&v| min_edge_length[v as usize]).sum::<f32>() / 3.0;
+        let small = n.length() < 2.0 * params.area_ratio * m * m;
+        if !(flipped || small) {
+            continue;
+        }
+        let e = table.face_to_edge[f];
+        let len = e.map(|e| edge_length[e as usize]);
+        let local = if randlim == 0 {
+            // First shortest edge.
+            (0..3).fold(0, |best, k| if len[k] < len[best] { k } else { best })
+        } else {
+            let mut order = [0usize, 1, 2];
+            order.sort_by(|&a, &b| len[b].total_cmp(&len[a])); // stable, longest first
+            let r = (mix(seed ^ mix(f as u64)) % randlim).min(2) as usize;
+            order[r]
+        };
+        flags[e[local] as usize] = true;
+    }
+    flags
+}
+
+/// Vertex → neighbour lists built from an edge table (compressed rows).
+struct Adjacency {
+    start: Vec<u32>,
+    neighbours: Vec<u32>,
+}
+
+impl Adjacency {
+    fn new(table: &EdgeTable, num_vertices: usize) -> Self {
+        let mut start = vec![0u32; num_vertices + 1];
+        for &[a, b] in &table.edges {
+            start[a as usize + 1] += 1;
+            start[b as usize + 1] += 1;
+        }
+        for v in 0..num_vertices {
+            start[v + 1] += start[v];
+        }
+        let mut cursor = start[..num_vertices].to_vec();
+        let mut neighbours = vec![0u32; start[num_vertices] as usize];
+        for &[a, b] in &table.edges {
+            neighbours[cursor[a as usize] as usize] = b;
+            cursor[a as usize] += 1;
+            neighbours[cursor[b as usize] as usize] = a;
+            cursor[b as usize] += 1;
+        }
+        Adjacency { start, neighbours }
+    }
+
+    fn of(&self, v: u32) -> &[u32] {
+        &self.neighbours[self.start[v as usize] as usize..self.start[v as usize + 1] as usize]
+    }
+}
+
+/// Collapses a far-apart subset of the edges with positive priority (reference A.5b).
+///
+/// 1. **Independent set**: edges are ranked by `(priority, index)`; an edge wins when no
+///    edge touching a vertex within graph distance 2 of its endpoints ranks higher (three
+///    rounds of max-propagation edge → vertex → edge).
+/// 2. **Link condition**: the endpoints may share only the opposite corners of the edge as
+///    neighbours (≤ 2 common neighbours, where two boundary vertices also share the virtual
+///    vertex that closes the boundary), and the two may not both have valence 3 (a lone
+///    tetrahedron). Together these keep a 2-manifold a 2-manifold of the same topology.
+/// 3. **Fold-over guard** (not in the reference): the collapse is skipped when a surviving
+///    face around the edge would turn its normal by 90° or more, or vanish.
+/// 4. **Merge**: the lower index survives with the mean of both rows (all columns); on an
+///    open mesh, an interior vertex merged with a boundary vertex takes the boundary
+///    vertex's position, so the boundary does not move inwards. The two faces of the edge
+///    are deleted (`alive = false`).
+///
+/// Returns the number of collapsed edges. Vertex rows of the removed endpoints stay in
+/// place, unreferenced, until [`pack`].
+pub fn collapse_edges<R: VertexRows>(
+    rows: &mut R,
+    faces: &mut [[u32; 3]],
+    alive: &mut [bool],
+    table: &EdgeTable,
+    priorities: &[f32],
+) -> usize {
+    let num_vertices = rows.len();
+    let edges = &table.edges;
+    let mut candidates: Vec<u32> = (0..edges.len() as u32).filter(|&e| priorities[e as usize] > 0.0).collect();
+    if candidates.is_empty() {
+        return 0;
+    }
+    candidates.sort_by(|&a, &b| priorities[a as usize].total_cmp(&priorities[b as usize]).then(a.cmp(&b)));
+    let mut rank = vec![0u32; edges.len()]; // 0 = not a candidate
+    for (i, &e) in candidates.iter().enumerate() {
+        rank[e as usize] = i as u32 + 1;
+    }
+    let mut vertex_rank = vec![0u32; num_vertices];
+    let mut edge_rank = rank.clone();
+    for _ in 0..3 {
+        for (&[a, b], &r) in edges.iter().zip(&edge_rank) {
+            vertex_rank[a as usize] = vertex_rank[a as usize].max(r);
+            vertex_rank[b as usize] = vertex_rank[b as usize].max(r);
+        }
+        for (r, &[a, b]) in edge_rank.iter_mut().zip(edges) {
+            *r = vertex_rank[a as usize].max(vertex_rank[b as usize]);
+        }
+    }
+    let winners: Vec<u32> = candidates.into_iter().filter(|&e| edge_rank[e as usize] == rank[e as usize]).collect();
+
+    // Link condition.
+    let adjacency = Adjacency::new(table, num_vertices);
+    let on_boundary = table.boundary_vertices(num_vertices);
+    let mut mark = vec![NONE; num_vertices];
+    let winners: Vec<u32> = winners
+        .into_iter()
+        .filter(|&e| {
+            let [s, d] = edges[e as usize];
+            for &n in adjacency.of(s) {
+                mark[n as usize] = e;
+            }
+            let mut common = adjacency.of(d).iter().filter(|&&n| mark[n as usize] == e).count();
+            let (bs, bd) = (on_boundary[s as usize], on_boundary[d as usize]);
+            if bs && bd {
+                common += 1; // the virtual vertex closing the boundary
+            }
+            let closed_degree = |v: u32, b: bool| adjacency.of(v).len() + usize::from(b);
+            common <= 2 && !(closed_degree(s, bs) <= 3 && closed_degree(d, bd) <= 3)
+        })
+        .collect();
+    if winners.is_empty() {
+        return 0;
+    }
+
+    // Faces around each winner (their 1-rings are disjoint, so each face has one owner).
+    let mut owner = vec![NONE; num_vertices];
+    for (w, &e) in winners.iter().enumerate() {
+        let [s, d] = edges[e as usize];
+        owner[s as usize] = w as u32;
+        owner[d as usize] = w as u32;
+    }
+    let mut start = vec![0u32; winners.len() + 1];
+    let mut owned: Vec<(u32, u32)> = Vec::new();
+    for (f, t) in faces.iter().enumerate() {
+        if alive[f]
+            && let Some(&v) = t.iter().find(|&&v| owner[v as usize] != NONE)
+        {
+            let w = owner[v as usize];
+            owned.push((w, f as u32));
+            start[w as usize + 1] += 1;
+        }
+    }
+    for w in 0..winners.len() {
+        start[w + 1] += start[w];
+    }
+    let mut ring = vec![0u32; owned.len()];
+    let mut cursor = start[..winners.len()].to_vec();
+    for &(w, f) in &owned {
+        ring[cursor[w as usize] as usize] = f;
+        cursor[w as usize] += 1;
+    }
+
+    let positions = rows.positions();
+    let mut merges: Vec<(u32, u32, Option<[f32; 3]>)> = Vec::with_capacity(winners.len());
+    for (w, &e) in winners.iter().enumerate() {
+        let [s, d] = edges[e as usize];
+        let (bs, bd) = (on_boundary[s as usize], on_boundary[d as usize]);
+        let pin = match (bs, bd) {
+            (true, false) => Some(positions[s as usize]),
+            (false, true) => Some(positions[d as usize]),
+            _ => None,
+        };
+        let p = v3(pin.unwrap_or_else(|| mean3(positions[s as usize], positions[d as usize])));
+        let faces_of = &ring[start[w] as usize..start[w + 1] as usize];
+        let folds = faces_of.iter().any(|&f| {
+            let t = faces[f as usize];
+            if t.contains(&s) && t.contains(&d) {
+                return false; // deleted by the collapse
+            }
+            let old = t.map(|v| v3(positions[v as usize]));
+            let new = t.map(|v| if v == s || v == d { p } else { v3(positions[v as usize]) });
+            let n_old = (old[1] - old[0]).cross(old[2] - old[0]);
+            let n_new = (new[1] - new[0]).cross(new[2] - new[0]);
+            n_old.dot(n_new) <= 0.0
+        });
+        if !folds {
+            merges.push((w as u32, e, pin));
+        }
+    }
+
+    for &(w, e, pin) in &merges {
+        let [s, d] = edges[e as usize];
+        rows.set_mean(s as usize, s as usize, d as usize);
+        if let Some(p) = pin {
+            rows.set_position(s as usize, p);
+        }
+        for &f in &ring[start[w as usize] as usize..start[w as usize + 1] as usize] {
+            let t = &mut faces[f as usize];
+            if t.contains(&s) && t.contains(&d) {
+                alive[f as usize] = false;
+            } else {
+                for v in t.iter_mut() {
+                    if *v == d {
+                        *v = s;
+                    }
+                }
+            }
+        }
+    }
+    merges.len()
+}
+
+/// Splits every edge whose `split` flag is set at its midpoint (reference A.6).
+///
+/// New vertex rows (the mean of the endpoint rows, all columns) are appended in edge
+/// order. Each live face is replaced in place by its "shrunk" face and its extra faces are
+/// appended in face order: one split gives 2 faces, two give 3, three give 4; both faces
+/// of an edge use the same midpoint and orientation is kept. Returns the number of splits.
+pub fn split_edges<R: VertexRows>(
+    rows: &mut R,
+    faces: &mut Vec<[u32; 3]>,
+    alive: &mut Vec<bool>,
+    table: &EdgeTable,
+    split: &[bool],
+) -> usize {
+    let mut edge_vertex = vec![NONE; table.edges.len()];
+    let mut count = 0;
+    for (e, &[a, b]) in table.edges.iter().enumerate() {
+        if split[e] {
+            edge_vertex[e] = rows.len() as u32;
+            rows.push_mean(a as usize, b as usize);
+            count += 1;
+        }
+    }
+    if count == 0 {
+        return 0;
+    }
+    for f in 0..faces.len().min(table.face_to_edge.len()) {
+        if !alive[f] {
+            continue;
+        }
+        let c = faces[f];
+        let side = table.face_to_edge[f].map(|e| edge_vertex[e as usize]);
+        if side == [NONE; 3] {
+            continue;
+        }
+        let shrunk: [u32; 3] = std::array::from_fn(|k| if side[k] != NONE { side[k] } else { c[k] });
+        faces[f] = shrunk;
+        for k in 0..3 {
+            if side[k] != NONE {
+                faces.push([c[k], side[k], shrunk[(k + 2) % 3]]);
+                alive.push(true);
+            }
+        }
+    }
+    count
+}
+
+/// Drops deleted faces and unreferenced vertex rows, keeping the order of both, and
+/// returns the live faces reindexed to the kept rows (reference A.7).
+pub fn pack<R: VertexRows>(rows: &mut R, faces: &[[u32; 3]], alive: &[bool]) -> Vec<[u32; 3]> {
+    let mut new_index = vec![NONE; rows.len()];
+    for (t, &live) in faces.iter().zip(alive) {
+        if live {
+            for &v in t {
+                new_index[v as usize] = 0;
+            }
+        }
+    }
+    let mut keep = Vec::with_capacity(rows.len());
+    for (v, slot) in new_index.iter_mut().enumerate() {
+        if *slot == 0 {
+            *slot = keep.len() as u32;
+            keep.push(v as u32);
+        }
+    }
+    rows.retain_rows(&keep);
+    faces.iter().zip(alive).filter(|(_, live)| **live).map(|(t, _)| t.map(|v| new_index[v as usize])).collect()
+}
+
+/// Flips interior edges to move vertex valences towards 6 (4 on a boundary) (reference
+/// A.8).
+///
+/// For the interior edge `(e0, e1)` with opposite corners `cl` (left face) and `cr`
+/// (right face), the change of `Σ (valence − target)²` is `2·Δ` with
+/// `Δ = 2 + d(cl) + d(cr) − d(e0) − d(e1)`; candidates have `Δ < 0`. With `with_border`
+/// the degree of vertices with no boundary edge is reduced by 2 so that interior vertices
+/// aim at 6 and boundary vertices at 4 (identical to the reference's `with_border=False`
+/// on closed meshes). Flips are chosen as an independent set (rank by `Δ` most negative
+/// first, ties by edge index; no two flips share any of their 4 vertices), skipped when the
+/// edge `(cl, cr)` already exists (it would duplicate an edge) and, with `normal_check`,
+/// when either new face would turn against the old pair's summed normal. Boundary edges are
+/// never flipped. The left face becomes `(e0, cr, cl)`, the right face `(e1, cl, cr)`.
+///
+/// Returns the flipped edges as `(edge index, new edge [lo, hi])`.
+pub fn flip_edges(
+    positions: &[[f32; 3]],
+    faces: &mut [[u32; 3]],
+    table: &EdgeTable,
+    with_border: bool,
+    normal_check: bool,
+) -> Vec<(usize, [u32; 2])> {
+    let num_vertices = positions.len();
+    let mut degree: Vec<i32> = table.degrees(num_vertices).into_iter().map(|d| d as i32).collect();
+    if with_border {
+        let on_boundary = table.boundary_vertices(num_vertices);
+        for (d, b) in degree.iter_mut().zip(on_boundary) {
+            if !b {
+                *d -= 2;
+            }
+        }
+    }
+    let corner = |half: u32| {
+        let (f, k) = (half as usize / 3, half as usize % 3);
+        faces[f][(k + 2) % 3]
+    };
+    // (edge, Δ, [e0, e1, cl, cr])
+    let mut candidates: Vec<(u32, i32, [u32; 4])> = Vec::new();
+    for (e, &[e0, e1]) in table.edges.iter().enumerate() {
+        let [left, right] = table.edge_to_face[e];
+        if left == NONE || right == NONE {
+            continue;
+        }
+        let (cl, cr) = (corner(left), corner(right));
+        let delta = 2 + degree[cl as usize] + degree[cr as usize] - degree[e0 as usize] - degree[e1 as usize];
+        if delta < 0 && cl != cr && table.find(cl, cr).is_none() {
+            candidates.push((e as u32, delta, [e0, e1, cl, cr]));
+        }
+    }
+    // Ascending rank: largest Δ first, ties by edge index; the highest rank wins.
+    candidates.sort_by(|a, b| b.1.cmp(&a.1).then(a.0.cmp(&b.0)));
+    let mut vertex_rank = vec![0u32; num_vertices];
+    for (i, c) in candidates.iter().enumerate() {
+        for &v in &c.2 {
+            vertex_rank[v as usize] = vertex_rank[v as usize].max(i as u32 + 1);
+        }
+    }
+    let mut flipped = Vec::new();
+    for (i, &(e, _, quad)) in candidates.iter().enumerate() {
+        if quad.iter().any(|&v| vertex_rank[v as usize] != i as u32 + 1) {
+            continue;
+        }
+        let [e0, e1, cl, cr] = quad;
+        if normal_check {
+            let o = v3(positions[e0 as usize]);
+            let [p1, l, r] = [e1, cl, cr].map(|v| v3(positions[v as usize]) - o);
+            let (old_left, old_right) = (p1.cross(l), r.cross(p1));
+            let (new_left, new_right) = (r.cross(l), (l - p1).cross(r - p1));
+            let n = old_left + old_right;
+            if n.dot(new_left) <= 0.0 || n.dot(new_right) <= 0.0 {
+                continue;
+            }
+            // Not in the reference: keep the pair at most as bent as before (or within
+            // ~26°), so that flips on curved, coarse regions do not fold the surface.
+            let bend = |a: Vec3, b: Vec3| a.normalize_or_zero().dot(b.normalize_or_zero());
+            if bend(new_left, new_right) < bend(old_left, old_right).min(MAX_FLIP_BEND_COS) {
+                continue;
+            }
+        }
+        let [left, right] = table.edge_to_face[e as usize];
+        faces[left as usize / 3] = [e0, cr, cl];
+        faces[right as usize / 3] = [e1, cl, cr];
+        flipped.push((e as usize, [cl.min(cr), cl.max(cr)]));
+    }
+    flipped
+}
+
+/// One continuous-remeshing pass (reference A.3): collapse → split → pack → flip.
+///
+/// `min_edge_length` / `max_edge_length` are per-vertex thresholds (the optimizer uses
+/// `ref_len · (1 ∓ tol)`). Edges shorter than the mean of their endpoints' minimum, and
+/// one edge of every flipped or small face, are collapsed (a far-apart subset per pass);
+/// then, unless the mesh has `max_vertices` rows, every edge longer than the mean of its
+/// endpoints' maximum is split once (using the thresholds from before the collapse, as the
+/// reference does); then deleted faces and unused rows are packed; then edges are flipped.
+///
+/// Returns the new triangles, the unique edges of the new triangles (in no particular
+/// order) and what was done. `rows` are rewritten in place.
+pub fn remesh<R: VertexRows>(
+    rows: &mut R,
+    faces: Vec<[u32; 3]>,
+    min_edge_length: &[f32],
+    max_edge_length: &[f32],
+    params: &RemeshParams,
+    seed: u64,
+) -> (Vec<[u32; 3]>, Vec<[u32; 2]>, RemeshStats) {
+    let mut faces = faces;
+    let mut alive = vec![true; faces.len()];
+    let num_vertices = rows.len();
+
+    // Collapse.
+    let table = EdgeTable::new(&faces, None, num_vertices);
+    let length = table.lengths(rows.positions());
+    let flags = face_collapse_flags(rows.positions(), &faces, &alive, &table, &length, min_edge_length, params, seed);
+    let priority: Vec<f32> = table
+        .edges
+        .iter()
+        .zip(&length)
+        .zip(&flags)
+        .map(|((&[a, b], &len), &flag)| {
+            let min = 0.5 * (min_edge_length[a as usize] + min_edge_length[b as usize]);
+            let shortness = (1.0 - len / min).max(0.0);
+            f32::from(u8::from(flag)) + shortness
+        })
+        .collect();
+    let collapsed = collapse_edges(rows, &mut faces, &mut alive, &table, &priority);
+
+    // Split.
+    let mut split = 0;
+    if num_vertices < params.max_vertices {
+        let table = EdgeTable::new(&faces, Some(&alive), num_vertices);
+        let positions = rows.positions();
+        let too_long: Vec<bool> = table
+            .edges
+            .iter()
+            .map(|&[a, b]| {
+                let max = 0.5 * (max_edge_length[a as usize] + max_edge_length[b as usize]);
+                crate::edges::distance(positions[a as usize], positions[b as usize]) > max
+            })
+            .collect();
+        split = split_edges(rows, &mut faces, &mut alive, &table, &too_long);
+    }
+
+    // Pack and flip.
+    let mut faces = pack(rows, &faces, &alive);
+    let table = EdgeTable::new(&faces, None, rows.len());
+    let mut edges = table.edges.clone();
+    let mut flipped = 0;
+    if params.flip {
+        let flips = flip_edges(rows.positions(), &mut faces, &table, true, true);
+        flipped = flips.len();
+        for (e, new_edge) in flips {
+            edges[e] = new_edge;
+        }
+    }
+    let stats = RemeshStats { collapsed, split, flipped, vertices: rows.len(), triangles: faces.len() };
+    (faces, edges, stats)
+}
