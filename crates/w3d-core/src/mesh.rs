@@ -93,31 +93,7 @@ impl Mesh {
         if triangles.is_empty() {
             return Err(Error::invalid("triangles", "at least one triangle, got none"));
         }
-        if positions.len() > u32::MAX as usize {
-            return Err(Error::invalid("positions", "fewer than 2³² vertices"));
-        }
-        for (i, p) in positions.iter().enumerate() {
-            for (axis, v) in ["x", "y", "z"].iter().zip(p) {
-                if !v.is_finite() {
-                    return Err(Error::invalid(format!("positions[{i}].{axis}"), format!("a finite number, got {v}")));
-                }
-            }
-        }
-        let n = positions.len() as u32;
-        for (i, t) in triangles.iter().enumerate() {
-            if let Some(&bad) = t.iter().find(|&&v| v >= n) {
-                return Err(Error::invalid(
-                    format!("triangles[{i}]"),
-                    format!("vertex indices below {n}, got {bad} in {t:?}"),
-                ));
-            }
-            if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
-                return Err(Error::invalid(
-                    format!("triangles[{i}]"),
-                    format!("three distinct vertex indices, got {t:?}"),
-                ));
-            }
-        }
+        validate_geometry(&positions, &triangles)?;
         Ok(Mesh { positions, triangles, normals: None, uvs: None, colours: None, texture: None })
     }
 
@@ -412,6 +388,36 @@ impl Mesh {
     ) {
         (self.positions, self.triangles, self.normals, self.uvs, self.colours, self.texture)
     }
+}
+
+/// Checks raw geometry arrays as [`Mesh::new`] does (without requiring them to be
+/// non-empty): finite coordinates, fewer than 2³² vertices, indices in range and three
+/// distinct indices per triangle. Errors name the first offending element
+/// (`positions[i].y`, `triangles[i]`). For crates that take plain arrays.
+pub fn validate_geometry(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Result<()> {
+    if positions.len() >= u32::MAX as usize {
+        return Err(Error::invalid("positions", "fewer than 2³²−1 vertices"));
+    }
+    for (i, p) in positions.iter().enumerate() {
+        for (axis, v) in ["x", "y", "z"].iter().zip(p) {
+            if !v.is_finite() {
+                return Err(Error::invalid(format!("positions[{i}].{axis}"), format!("a finite number, got {v}")));
+            }
+        }
+    }
+    let n = positions.len() as u32;
+    for (i, t) in triangles.iter().enumerate() {
+        if let Some(&bad) = t.iter().find(|&&v| v >= n) {
+            return Err(Error::invalid(
+                format!("triangles[{i}]"),
+                format!("vertex indices below {n}, got {bad} in {t:?}"),
+            ));
+        }
+        if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
+            return Err(Error::invalid(format!("triangles[{i}]"), format!("three distinct vertex indices, got {t:?}")));
+        }
+    }
+    Ok(())
 }
 
 fn check_finite<'a>(field: &str, values: impl Iterator<Item = &'a f32>) -> Result<()> {

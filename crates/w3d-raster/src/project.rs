@@ -104,30 +104,3 @@ pub(crate) fn check_size(width: u32, height: u32) -> Result<()> {
     }
     Ok(())
 }
-
-/// Checks positions (finite) and triangles (indices in range, distinct).
-pub(crate) fn check_mesh(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Result<()> {
-    if positions.len() >= u32::MAX as usize {
-        return Err(Error::invalid("positions", "fewer than 2³²−1 vertices"));
-    }
-    if triangles.len() >= u32::MAX as usize {
-        return Err(Error::invalid("triangles", "fewer than 2³²−1 triangles"));
-    }
-    for (i, p) in positions.iter().enumerate() {
-        for (axis, v) in ["x", "y", "z"].iter().zip(p) {
-            if !v.is_finite() {
-                return Err(Error::invalid(format!("positions[{i}].{axis}"), format!("a finite number, got {v}")));
-            }
-        }
-    }
-    let n = positions.len() as u32;
-    for (i, t) in triangles.iter().enumerate() {
-        if let Some(&bad) = t.iter().find(|&&v| v >= n) {
-            return Err(Error::invalid(
-                format!("triangles[{i}]"),
-                format!("vertex indices below {n}, got {bad} in {t:?}"),
-            ));
-        }
-    }
-    Ok(())
-}

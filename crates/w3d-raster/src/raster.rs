@@ -5,7 +5,7 @@ use glam::DVec3;
 use rayon::prelude::*;
 use w3d_core::{Camera, Error, Result};
 
-use crate::project::{ClipVertex, NEAR_DEPTH, Projector, check_mesh, check_size};
+use crate::project::{ClipVertex, NEAR_DEPTH, Projector, check_size};
 
 /// Marks a pixel that no triangle covers in [`Raster::triangle`].
 pub const NO_TRIANGLE: u32 = u32::MAX;
@@ -127,7 +127,7 @@ pub fn rasterize_views(
     height: u32,
 ) -> Result<Vec<Raster>> {
     check_size(width, height)?;
-    check_mesh(positions, triangles)?;
+    w3d_core::mesh::validate_geometry(positions, triangles)?;
     for (i, camera) in cameras.iter().enumerate() {
         camera.validate().map_err(|e| match e {
             Error::Invalid { field, expected } => Error::invalid(format!("cameras[{i}].{field}"), expected),
@@ -324,7 +324,7 @@ pub fn rasterize_backward(
     grad_uv: &[[f32; 2]],
     grad_depth: Option<&[f32]>,
 ) -> Result<Vec<[f32; 3]>> {
-    check_mesh(positions, triangles)?;
+    w3d_core::mesh::validate_geometry(positions, triangles)?;
     raster.check(positions.len(), triangles)?;
     let n = raster.pixel_count();
     if grad_uv.len() != n {
