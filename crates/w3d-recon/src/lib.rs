@@ -18,8 +18,11 @@
 //! # Ok::<(), w3d_core::Error>(())
 //! ```
 
+mod coarse;
 mod integrate;
 mod normals;
+
+pub use coarse::{CoarseOptions, CoarseReport, reconstruct_coarse, silhouette_sphere};
 
 pub use integrate::{IntegrateOptions, integrate_normals};
 pub use normals::{vertex_normals, vertex_normals_backward};
