@@ -34,7 +34,7 @@ pub struct SurfaceComparison {
 }
 
 /// For each point of `from`: the distance to and the index of its nearest point in `to`.
-fn nearest(from: &[[f32; 3]], to: &[[f32; 3]]) -> Vec<(f32, usize)> {
+pub(crate) fn nearest(from: &[[f32; 3]], to: &[[f32; 3]]) -> Vec<(f32, usize)> {
     let tree: ImmutableKdTree<f32, 3> = ImmutableKdTree::new_from_slice(to);
     from.par_iter()
         .map(|q| {

@@ -8,6 +8,9 @@
 //! metrics come from seeded, area-weighted samples ([`sample_surface`]) matched with k-d
 //! trees ([`SurfaceComparison`]); volume IoU decides "inside" with hierarchical generalised
 //! winding numbers ([`WindingNumber`]), so open or non-manifold predictions are handled.
+//! SyncDreamer's own Chamfer variant, on the surface seen by its 16 depth views only, is
+//! [`visible_surface_chamfer`]; [`align_icp_scale`] fits a similarity (ICP with scale) as a
+//! diagnostic of how much of an error is pose and scale.
 //!
 //! ```
 //! use w3d_core::Mesh;
@@ -30,14 +33,18 @@
 //! ```
 
 mod distance;
+mod icp;
 mod image_metrics;
 mod sampling;
+mod visible;
 mod volume;
 mod winding;
 
 pub use distance::{FScore, SurfaceComparison};
+pub use icp::{IcpOptions, Similarity, align_icp_scale};
 pub use image_metrics::{composite_over_white, psnr, ssim};
 pub use sampling::{SurfaceSamples, sample_surface};
+pub use visible::{VisibleChamfer, VisibleOptions, visible_points, visible_surface_chamfer, voxel_down_sample};
 pub use volume::{Grid, occupancy, occupancy_iou, volume_iou};
 pub use winding::WindingNumber;
 

@@ -38,7 +38,7 @@ pub struct EdgeTopology {
 impl EdgeTopology {
     /// Builds the table for a mesh. Fails on indices out of range or non-finite positions.
     pub fn new(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Result<Self> {
-        w3d_core::mesh::validate_geometry(positions, triangles)?;
+        crate::raster::validate_geometry(positions, triangles)?;
         let welded = weld_by_position(positions);
         let mut edges: HashMap<(u32, u32), [(u32, u32); 2]> = HashMap::with_capacity(triangles.len() * 2);
         let key = |a: u32, b: u32| if a < b { (a, b) } else { (b, a) };
@@ -123,7 +123,7 @@ fn check(
     positions: &[[f32; 3]],
     triangles: &[[u32; 3]],
 ) -> Result<()> {
-    w3d_core::mesh::validate_geometry(positions, triangles)?;
+    crate::raster::validate_geometry(positions, triangles)?;
     raster.check(positions.len(), triangles)?;
     if channels == 0 {
         return Err(Error::invalid("channels", "at least one channel"));

@@ -29,12 +29,18 @@ fn check(attributes: &[f32], channels: usize, triangles: &[[u32; 3]], raster: &R
             ),
         ));
     }
-    if let Some(i) = attributes.iter().position(|v| !v.is_finite()) {
+    // Branch-free scans first; locate the culprit only on failure.
+    if crate::raster::count_non_finite(attributes) > 0
+        && let Some(i) = attributes.iter().position(|v| !v.is_finite())
+    {
         return Err(Error::invalid(format!("attributes[{i}]"), "a finite number"));
     }
     raster.check(raster.vertex_count, triangles)?;
-    if let Some((i, t)) =
-        triangles.iter().enumerate().find(|(_, t)| t.iter().any(|&v| v as usize >= raster.vertex_count))
+    let n = u32::try_from(raster.vertex_count).unwrap_or(u32::MAX);
+    let bad = triangles.iter().fold(0u32, |b, t| b + ((t[0] >= n) | (t[1] >= n) | (t[2] >= n)) as u32);
+    if bad > 0
+        && let Some((i, t)) =
+            triangles.iter().enumerate().find(|(_, t)| t.iter().any(|&v| v as usize >= raster.vertex_count))
     {
         return Err(Error::invalid(
             format!("triangles[{i}]"),

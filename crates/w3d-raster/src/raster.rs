@@ -80,11 +80,36 @@ impl Raster {
                 ),
             ));
         }
-        if let Some(t) = self.triangle.iter().find(|&&t| t != NO_TRIANGLE && t as usize >= triangles.len()) {
+        // Branch-free count (`NO_TRIANGLE + 1` wraps to 0); locate the culprit only on failure.
+        let bound = u32::try_from(triangles.len()).unwrap_or(u32::MAX);
+        let bad = self.triangle.iter().fold(0u32, |n, &t| n + (t.wrapping_add(1) > bound) as u32);
+        if bad > 0
+            && let Some(t) = self.triangle.iter().find(|&&t| t != NO_TRIANGLE && t as usize >= triangles.len())
+        {
             return Err(Error::invalid("raster.triangle", format!("ids below {}, got {t}", triangles.len())));
         }
         Ok(())
     }
+}
+
+/// The number of non-finite values (exponent bits all ones), counted without branches.
+pub(crate) fn count_non_finite(values: &[f32]) -> u32 {
+    values.iter().fold(0u32, |n, v| n + (v.to_bits() & 0x7f80_0000 == 0x7f80_0000) as u32)
+}
+
+/// [`w3d_core::mesh::validate_geometry`] (finite positions; three distinct vertex indices
+/// below `positions.len()` per triangle) with a branch-free scan first: the detailed check,
+/// and its error, only run when the scan finds a problem.
+pub(crate) fn validate_geometry(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Result<()> {
+    let finite = count_non_finite(positions.as_flattened()) == 0;
+    let indices_ok = u32::try_from(positions.len()).is_ok_and(|n| {
+        n < u32::MAX
+            && triangles.iter().fold(0u32, |bad, t| {
+                let out = (t[0] >= n) | (t[1] >= n) | (t[2] >= n);
+                bad + (out | (t[0] == t[1]) | (t[1] == t[2]) | (t[0] == t[2])) as u32
+            }) == 0
+    });
+    if finite && indices_ok { Ok(()) } else { w3d_core::mesh::validate_geometry(positions, triangles) }
 }
 
 /// Rasterises a mesh through one camera into a `width × height` image.
@@ -118,7 +143,9 @@ pub fn rasterize(
 }
 
 /// Rasterises a mesh through several cameras (e.g. the cameras of a
-/// [`w3d_core::ViewRig`]), in parallel over views and row bands; see [`rasterize`].
+/// [`w3d_core::ViewRig`]), in parallel over views (one pass over the triangles per view
+/// when there are at least twice as many views as threads) or else over row bands; see
+/// [`rasterize`]. Both schedules give bit-identical rasters.
 pub fn rasterize_views(
     positions: &[[f32; 3]],
     triangles: &[[u32; 3]],
@@ -127,15 +154,13 @@ pub fn rasterize_views(
     height: u32,
 ) -> Result<Vec<Raster>> {
     check_size(width, height)?;
-    w3d_core::mesh::validate_geometry(positions, triangles)?;
+    validate_geometry(positions, triangles)?;
     for (i, camera) in cameras.iter().enumerate() {
         camera.validate().map_err(|e| match e {
             Error::Invalid { field, expected } => Error::invalid(format!("cameras[{i}].{field}"), expected),
             other => other,
         })?;
     }
-    let setups: Vec<ViewSetup> =
-        cameras.par_iter().map(|camera| ViewSetup::new(positions, triangles, camera, width, height)).collect();
     let n = width as usize * height as usize;
     let mut rasters: Vec<Raster> = cameras
         .iter()
@@ -150,6 +175,22 @@ pub fn rasterize_views(
             depth: vec![0.0; n],
         })
         .collect();
+    if cameras.len() >= 2 * rayon::current_num_threads() {
+        // Enough views to keep every thread busy: one pass over the triangles per view,
+        // no binning. Same pixels, same order per pixel: the same result as the bands.
+        rasters.par_iter_mut().for_each(|r| {
+            let setup = ViewSetup::new(positions, &r.camera, width, height);
+            let items = triangles.iter().enumerate().filter_map(|(t, tri)| {
+                let range = setup.centre_box(tri)?;
+                Some((t as u32, setup.corners(tri), range))
+            });
+            setup.raster_rows(items, 0, Band { triangle: &mut r.triangle, uv: &mut r.uv, depth: &mut r.depth });
+        });
+        return Ok(rasters);
+    }
+    let setups: Vec<ViewSetup> =
+        cameras.par_iter().map(|camera| ViewSetup::new(positions, camera, width, height)).collect();
+    let bins: Vec<Bins> = setups.par_iter().map(|setup| setup.bins(triangles)).collect();
     // Each band writes its own rows of its view's raster: no copies, no shared writes.
     let band_len = (BAND_ROWS * width) as usize;
     let mut bands: Vec<(usize, u32, Band<'_>)> = Vec::new();
@@ -159,7 +200,12 @@ pub fn rasterize_views(
             bands.push((v, b as u32, Band { triangle, uv, depth }));
         }
     }
-    bands.into_par_iter().for_each(|(v, b, band)| setups[v].raster_band(triangles, b, band));
+    bands.into_par_iter().for_each(|(v, b, band)| {
+        let items = bins[v].items[bins[v].start[b as usize]..bins[v].start[b as usize + 1]]
+            .iter()
+            .map(|&(t, range)| (t, setups[v].corners(&triangles[t as usize]), range));
+        setups[v].raster_rows(items, b * BAND_ROWS, band)
+    });
     Ok(rasters)
 }
 
@@ -207,13 +253,46 @@ impl Edge {
 struct ViewSetup {
     width: u32,
     height: u32,
-    clip: Vec<ClipVertex>,
-    /// Per band, ascending, the triangles touching it and the inclusive pixel ranges
-    /// `[first column, last column, first row, last row]` of the centres in their bbox.
-    bins: Vec<Vec<(u32, [u32; 4])>>,
+    vertices: Vec<ScreenVertex>,
+    /// Per vertex, its pixel-centre bounds (see [`Cells`]).
+    cells: Vec<Cells>,
 }
 
-/// The rows of one band in the output raster.
+/// The pixel-centre bounds of one projected vertex: with `a = clamp(s − 0.5, −1, n)` for
+/// its pixel coordinate `s` along an image side of `n` pixels, `⌈a⌉` and `⌊a⌋` per axis.
+/// Rounding, clamping, `⌈⌉` and `⌊⌋` are monotone, so a triangle's centre range
+/// `max(⌈min a⌉, 0) ..= min(⌊max a⌋, n − 1)` (see [`centre_bounds`]) is the min / max of its
+/// corners' cells: per-triangle binning without floating-point work.
+#[derive(Debug, Clone, Copy)]
+struct Cells {
+    /// `[⌈a⌉, ⌊a⌋]` for x (columns) then y (rows).
+    x: [i32; 2],
+    y: [i32; 2],
+    /// In front of the near plane with finite pixel coordinates.
+    drawable: bool,
+}
+
+/// The triangles touching each row band of one view, with the inclusive pixel ranges
+/// `[first column, last column, first row, last row]` of the centres in their bbox.
+struct Bins {
+    /// Band `b` owns `items[start[b]..start[b + 1]]`, ascending by triangle.
+    start: Vec<usize>,
+    items: Vec<(u32, [u32; 4])>,
+}
+
+/// What the band loop needs of one projected vertex.
+#[derive(Debug, Clone, Copy)]
+struct ScreenVertex {
+    /// Pixel coordinates (see [`ClipVertex`]).
+    sx: f64,
+    sy: f64,
+    /// Depth along the viewing axis, world units.
+    depth: f64,
+    /// `1 / w` of the clip coordinates.
+    inv_w: f64,
+}
+
+/// Whole consecutive rows (a band, or the whole image) of one output raster.
 struct Band<'a> {
     triangle: &'a mut [u32],
     uv: &'a mut [[f32; 2]],
@@ -221,37 +300,88 @@ struct Band<'a> {
 }
 
 impl ViewSetup {
-    fn new(positions: &[[f32; 3]], triangles: &[[u32; 3]], camera: &Camera, width: u32, height: u32) -> Self {
+    fn new(positions: &[[f32; 3]], camera: &Camera, width: u32, height: u32) -> Self {
         let projector = Projector::new(camera, width, height);
-        let clip = projector.project_all(positions);
-        let mut bins = vec![Vec::new(); height.div_ceil(BAND_ROWS) as usize];
-        for (t, tri) in triangles.iter().enumerate() {
-            let v = tri.map(|i| clip[i as usize]);
-            if !v.iter().all(|c| c.depth > NEAR_DEPTH && c.sx.is_finite() && c.sy.is_finite()) {
-                continue;
-            }
-            let (xmin, xmax) = (v[0].sx.min(v[1].sx).min(v[2].sx), v[0].sx.max(v[1].sx).max(v[2].sx));
-            let (ymin, ymax) = (v[0].sy.min(v[1].sy).min(v[2].sy), v[0].sy.max(v[1].sy).max(v[2].sy));
-            // Most triangles of a dense mesh cover no pixel centre at all: drop them here.
-            let (Some((c0, c1)), Some((r0, r1))) = (centre_range(xmin, xmax, width), centre_range(ymin, ymax, height))
-            else {
-                continue;
-            };
-            for band in r0 / BAND_ROWS..=r1 / BAND_ROWS {
-                bins[band as usize].push((t as u32, [c0, c1, r0, r1]));
-            }
-        }
-        ViewSetup { width, height, clip, bins }
+        let vertices: Vec<ScreenVertex> = positions
+            .iter()
+            .map(|&p| {
+                let c = projector.project(to_dvec(p));
+                ScreenVertex { sx: c.sx, sy: c.sy, depth: c.depth, inv_w: 1.0 / c.w }
+            })
+            .collect();
+        let cells = vertices
+            .iter()
+            .map(|c| Cells {
+                x: centre_bounds(c.sx, width),
+                y: centre_bounds(c.sy, height),
+                drawable: (c.depth > NEAR_DEPTH) & c.sx.is_finite() & c.sy.is_finite(),
+            })
+            .collect();
+        ViewSetup { width, height, vertices, cells }
     }
 
-    fn raster_band(&self, triangles: &[[u32; 3]], band: u32, out: Band<'_>) {
-        let row0 = band * BAND_ROWS;
-        let row1 = (row0 + BAND_ROWS).min(self.height);
+    /// The projected corners of a triangle.
+    #[inline]
+    fn corners(&self, tri: &[u32; 3]) -> [ScreenVertex; 3] {
+        tri.map(|i| self.vertices[i as usize])
+    }
+
+    /// The inclusive ranges `[first column, last column, first row, last row]` of the
+    /// pixel centres in the bbox of a drawable triangle; `None` if it is not drawn or
+    /// its bbox holds no centre (most triangles of a dense mesh).
+    #[inline]
+    fn centre_box(&self, tri: &[u32; 3]) -> Option<[u32; 4]> {
+        let c = tri.map(|i| self.cells[i as usize]);
+        // Non-short-circuit `&`: one branch.
+        if !(c[0].drawable & c[1].drawable & c[2].drawable) {
+            return None;
+        }
+        let range = |a: [i32; 2], b: [i32; 2], d: [i32; 2], n: u32| {
+            let first = a[0].min(b[0]).min(d[0]).max(0);
+            let last = a[1].max(b[1]).max(d[1]).min(n as i32 - 1);
+            (first <= last).then_some((first as u32, last as u32))
+        };
+        let (c0, c1) = range(c[0].x, c[1].x, c[2].x, self.width)?;
+        let (r0, r1) = range(c[0].y, c[1].y, c[2].y, self.height)?;
+        Some([c0, c1, r0, r1])
+    }
+
+    /// Sorts the drawable triangles into bands of [`BAND_ROWS`] rows.
+    fn bins(&self, triangles: &[[u32; 3]]) -> Bins {
+        let band_count = self.height.div_ceil(BAND_ROWS) as usize;
+        // Pass 1: the triangles to draw, and how many go to each band.
+        let mut kept = Vec::with_capacity(triangles.len());
+        let mut start = vec![0usize; band_count + 1];
+        for (t, tri) in triangles.iter().enumerate() {
+            let Some(range) = self.centre_box(tri) else { continue };
+            for band in range[2] / BAND_ROWS..=range[3] / BAND_ROWS {
+                start[band as usize + 1] += 1;
+            }
+            kept.push((t as u32, range));
+        }
+        for b in 0..band_count {
+            start[b + 1] += start[b];
+        }
+        // Pass 2: scatter in triangle order, so each band stays ascending.
+        let mut next = start.clone();
+        let mut items = vec![(0u32, [0u32; 4]); start[band_count]];
+        for &(t, range) in &kept {
+            for band in range[2] / BAND_ROWS..=range[3] / BAND_ROWS {
+                items[next[band as usize]] = (t, range);
+                next[band as usize] += 1;
+            }
+        }
+        Bins { start, items }
+    }
+
+    /// Draws `items` (ascending triangle ids with their [`Self::corners`] and
+    /// [`Self::centre_box`]) into the rows `row0..` of `out`, which holds whole image rows.
+    fn raster_rows(&self, items: impl Iterator<Item = (u32, [ScreenVertex; 3], [u32; 4])>, row0: u32, out: Band<'_>) {
         let w = self.width as usize;
+        let row1 = row0 + (out.depth.len() / w) as u32;
         // The depth test runs in f64; the raster stores f32.
         let mut best = vec![f64::INFINITY; out.depth.len()];
-        for &(t, [c0, c1, r0, r1]) in &self.bins[band as usize] {
-            let v = triangles[t as usize].map(|i| self.clip[i as usize]);
+        for (t, v, [c0, c1, r0, r1]) in items {
             let s = v.map(|c| (c.sx, c.sy));
             let area = (s[1].0 - s[0].0) * (s[2].1 - s[0].1) - (s[1].1 - s[0].1) * (s[2].0 - s[0].0);
             if area == 0.0 || !area.is_finite() {
@@ -260,9 +390,15 @@ impl ViewSetup {
             let orient = area.signum();
             let edges = [Edge::new(s[1], s[2], orient), Edge::new(s[2], s[0], orient), Edge::new(s[0], s[1], orient)];
             let (r0, r1) = (r0.max(row0), r1.min(row1 - 1));
-            let inv_w = v.map(|c| 1.0 / c.w);
+            let inv_w = v.map(|c| c.inv_w);
+            let d = v.map(|c| c.depth);
+            // No pixel of this triangle can pass a depth test against `best` below `reject`:
+            // its depths are convex combinations of the vertex depths, whose rounding error
+            // is far below 1e-9 of the largest one. Skipping those pixels changes nothing.
+            let reject = d[0].min(d[1]).min(d[2]) - 1e-9 * d[0].max(d[1]).max(d[2]);
             for row in r0..=r1 {
                 let y = row as f64 + 0.5;
+                let line = (row - row0) as usize * w;
                 for col in c0..=c1 {
                     let x = col as f64 + 0.5;
                     let e = [edges[0].eval(x, y), edges[1].eval(x, y), edges[2].eval(x, y)];
@@ -270,12 +406,15 @@ impl ViewSetup {
                     if !(edges[0].inside(e[0]) & edges[1].inside(e[1]) & edges[2].inside(e[2])) {
                         continue;
                     }
+                    let i = line + col as usize;
+                    if best[i] < reject {
+                        continue;
+                    }
                     // Screen-space barycentrics e_k / area made perspective-correct by 1/w_k.
                     let q = [e[0] * orient * inv_w[0], e[1] * orient * inv_w[1], e[2] * orient * inv_w[2]];
                     let inv_sum = 1.0 / (q[0] + q[1] + q[2]);
                     let (u, vv) = clamp_uv(q[0] * inv_sum, q[1] * inv_sum);
-                    let depth = u * v[0].depth + vv * v[1].depth + (1.0 - u - vv) * v[2].depth;
-                    let i = (row - row0) as usize * w + col as usize;
+                    let depth = u * d[0] + vv * d[1] + (1.0 - u - vv) * d[2];
                     if depth < best[i] {
                         best[i] = depth;
                         out.triangle[i] = t;
@@ -295,18 +434,17 @@ fn clamp_uv(u: f64, v: f64) -> (f64, f64) {
     if s > 1.0 { (u / s, v / s) } else { (u, v) }
 }
 
-/// The inclusive range of pixel indices whose centre `i + 0.5` lies in `[lo, hi]`,
-/// clipped to `0..n`; `None` if empty.
-fn centre_range(lo: f64, hi: f64, n: u32) -> Option<(u32, u32)> {
+/// `[⌈a⌉, ⌊a⌋]` for `a = clamp(s − 0.5, −1, n)`: the pixel indices `i` whose centre
+/// `i + 0.5` lies in `[lo, hi]`, clipped to `0..n`, are
+/// `max(⌈a(lo)⌉, 0) ..= min(⌊a(hi)⌋, n − 1)` (see [`Cells`]). Meaningless for non-finite `s`.
+fn centre_bounds(s: f64, n: u32) -> [i32; 2] {
     // Clamp first so the integer conversions below are exact; `floor` without a libm call.
     let floor = |x: f64| {
         let i = x as i64 as f64;
         if i > x { i - 1.0 } else { i }
     };
-    let (lo, hi) = ((lo - 0.5).clamp(-1.0, n as f64), (hi - 0.5).clamp(-1.0, n as f64));
-    let first = -floor(-lo);
-    let (first, last) = (first.max(0.0), floor(hi).min(n as f64 - 1.0));
-    (first <= last).then_some((first as u32, last as u32))
+    let a = (s - 0.5).clamp(-1.0, n as f64);
+    [-floor(-a) as i32, floor(a) as i32]
 }
 
 /// Backward pass of [`rasterize`]: pulls per-pixel gradients of the barycentrics `(u, v)`
@@ -324,7 +462,7 @@ pub fn rasterize_backward(
     grad_uv: &[[f32; 2]],
     grad_depth: Option<&[f32]>,
 ) -> Result<Vec<[f32; 3]>> {
-    w3d_core::mesh::validate_geometry(positions, triangles)?;
+    validate_geometry(positions, triangles)?;
     raster.check(positions.len(), triangles)?;
     let n = raster.pixel_count();
     if grad_uv.len() != n {
@@ -338,14 +476,20 @@ pub fn rasterize_backward(
     let projector = Projector::new(&raster.camera, raster.width, raster.height);
     let clip = projector.project_all(positions);
     let mut acc = vec![[0.0f64; 4]; positions.len()];
-    for (i, &t) in raster.triangle.iter().enumerate() {
-        if t == NO_TRIANGLE {
-            continue;
+    // Pixel-centre NDC per column and per row, as `Projector::pixel_ndc` gives them.
+    let ndc_x: Vec<f64> = (0..raster.width).map(|col| projector.pixel_ndc(col, 0).0).collect();
+    let ndc_y: Vec<f64> = (0..raster.height).map(|row| projector.pixel_ndc(0, row).1).collect();
+    let w = raster.width as usize;
+    for (row, line) in raster.triangle.chunks_exact(w).enumerate() {
+        for (col, &t) in line.iter().enumerate() {
+            if t == NO_TRIANGLE {
+                continue;
+            }
+            let i = row * w + col;
+            let gd = grad_depth.map_or(0.0, |g| g[i] as f64);
+            let g = [grad_uv[i][0] as f64, grad_uv[i][1] as f64];
+            accumulate_pixel(&clip, triangles[t as usize], (ndc_x[col], ndc_y[row]), g, gd, &mut acc);
         }
-        let (col, row) = ((i % raster.width as usize) as u32, (i / raster.width as usize) as u32);
-        let gd = grad_depth.map_or(0.0, |g| g[i] as f64);
-        let g = [grad_uv[i][0] as f64, grad_uv[i][1] as f64];
-        accumulate_pixel(&projector, &clip, triangles[t as usize], col, row, g, gd, &mut acc);
     }
     Ok(acc.iter().map(|g| projector.clip_grad_to_world(*g).as_vec3().to_array()).collect())
 }
@@ -354,13 +498,18 @@ pub fn rasterize_backward(
 /// `(r, A, S)` with `r_i = (x_i − X·w_i, y_i − Y·w_i)` for the pixel centre's NDC `(X, Y)`,
 /// `A_i = r_{i+1} × r_{i+2}` and `S = ΣA_i`; the perspective-correct (unclamped)
 /// barycentrics are `A_i / S`.
+#[cfg(test)]
 pub(crate) fn pixel_barycentrics(
     projector: &Projector,
     v: [ClipVertex; 3],
     col: u32,
     row: u32,
 ) -> ([DVecPair; 3], [f64; 3], f64) {
-    let (nx, ny) = projector.pixel_ndc(col, row);
+    barycentrics_at(v, projector.pixel_ndc(col, row))
+}
+
+/// [`pixel_barycentrics`] at the pixel centre's NDC `(X, Y)`.
+fn barycentrics_at(v: [ClipVertex; 3], (nx, ny): (f64, f64)) -> ([DVecPair; 3], [f64; 3], f64) {
     let r = v.map(|c| DVecPair(c.x - nx * c.w, c.y - ny * c.w));
     let a = [r[1].cross(r[2]), r[2].cross(r[0]), r[0].cross(r[1])];
     (r, a, a[0] + a[1] + a[2])
@@ -376,21 +525,12 @@ impl DVecPair {
     }
 }
 
-/// Adds the contribution of one pixel with upstream gradients `g = (dL/du, dL/dv)` and
-/// `gd = dL/ddepth` to the per-vertex clip gradients `acc[v] = (x, y, w, depth)`.
-#[allow(clippy::too_many_arguments)]
-fn accumulate_pixel(
-    projector: &Projector,
-    clip: &[ClipVertex],
-    tri: [u32; 3],
-    col: u32,
-    row: u32,
-    g: [f64; 2],
-    gd: f64,
-    acc: &mut [[f64; 4]],
-) {
+/// Adds the contribution of the pixel with centre NDC `ndc` and upstream gradients
+/// `g = (dL/du, dL/dv)` and `gd = dL/ddepth` to the per-vertex clip gradients
+/// `acc[v] = (x, y, w, depth)`.
+fn accumulate_pixel(clip: &[ClipVertex], tri: [u32; 3], ndc: (f64, f64), g: [f64; 2], gd: f64, acc: &mut [[f64; 4]]) {
     let v = tri.map(|i| clip[i as usize]);
-    let (r, a, s) = pixel_barycentrics(projector, v, col, row);
+    let (r, a, s) = barycentrics_at(v, ndc);
     if s == 0.0 || !s.is_finite() {
         return;
     }
@@ -409,7 +549,7 @@ fn accumulate_pixel(
         dr[k2].0 -= dak * r[k1].1;
         dr[k2].1 += dak * r[k1].0;
     }
-    let (nx, ny) = projector.pixel_ndc(col, row);
+    let (nx, ny) = ndc;
     for k in 0..3 {
         let e = &mut acc[tri[k] as usize];
         e[0] += dr[k].0;
@@ -545,6 +685,32 @@ pub(crate) mod tests {
         for (col, row) in [(16, 16), (20, 16), (16, 10), (12, 12)] {
             assert_eq!(counts[(row * size + col) as usize], 1, "({col}, {row})");
         }
+    }
+
+    #[test]
+    fn per_view_and_banded_rasterisation_agree() {
+        // Views ≥ 2 × threads: one pass per view; fewer: row bands. Same bits either way.
+        let mut rng = crate::tests_util::Lcg(11);
+        let mut coord = || 0.6 * rng.next() as f32;
+        let positions: Vec<[f32; 3]> = (0..300).map(|_| [coord(), coord(), coord()]).collect();
+        let triangles: Vec<[u32; 3]> = (0..100).map(|t| [3 * t, 3 * t + 1, 3 * t + 2]).collect();
+        let cams = [
+            front(Projection::Perspective { fov_y: 1.0 }),
+            Camera::look_at(
+                Vec3::new(1.5, 0.5, 1.0),
+                Vec3::ZERO,
+                Vec3::Y,
+                Projection::Orthographic { half_height: 0.8 },
+            )
+            .unwrap(),
+        ];
+        let run = |threads| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| rasterize_views(&positions, &triangles, &cams, 40, 37).unwrap())
+        };
+        let (per_view, banded) = (run(1), run(4));
+        assert!(per_view[1].triangle.iter().filter(|&&t| t != NO_TRIANGLE).count() > 200);
+        assert_eq!(per_view, banded);
     }
 
     #[test]
