@@ -88,6 +88,64 @@ pub fn vertex_normals(num_vertices: usize, faces: &[[u32; 3]], alive: &[bool], f
     sum
 }
 
+/// Whether an edge flip would fold the surface: one of the two new faces `edits`
+/// (`(face index, new corners)`) comes out **degenerate** (zero area) or **flipped**, or an
+/// untouched face next to them becomes flipped (positions do not change).
+///
+/// A face is flipped when its unit normal points against the sum of its edge neighbours'
+/// unit normals (like the test of [`face_collapse_flags`], with the neighbours in place of
+/// the corners; unit normals make it blind to splits, which keep every normal). Neighbours
+/// before the flip come from `table`, after it from `edits` first. Untouched faces that
+/// were already flipped may stay flipped, so a flip next to a fold is not blocked by it.
+fn flip_folds(positions: &[[f32; 3]], faces: &[[u32; 3]], table: &EdgeTable, edits: &[(u32, [u32; 3]); 2]) -> bool {
+    let unit_normal = |t: [u32; 3]| {
+        let [a, b, c] = t.map(|v| v3(positions[v as usize]));
+        (b - a).cross(c - a).normalize_or_zero()
+    };
+    let edited = |f: u32| edits.iter().any(|e| e.0 == f);
+    // The face before the flip that runs along `b → a`.
+    let old_across = |a: u32, b: u32| {
+        let e = table.find(a, b)?;
+        let half = table.edge_to_face[e][usize::from(a < b)];
+        (half != NONE).then_some(half / 3)
+    };
+    // The face (and its corners) after the flip that runs along `b → a`.
+    let new_across = |a: u32, b: u32| {
+        let runs = |t: [u32; 3]| (0..3).any(|k| t[k] == b && t[(k + 1) % 3] == a);
+        if let Some(&(f, t)) = edits.iter().find(|e| runs(e.1)) {
+            return Some((f, t));
+        }
+        old_across(a, b).filter(|&g| !edited(g)).map(|g| (g, faces[g as usize]))
+    };
+    let old_flipped = |f: u32, t: [u32; 3]| {
+        let around: Vec3 = (0..3)
+            .filter_map(|k| old_across(t[k], t[(k + 1) % 3]))
+            .filter(|&g| g != f)
+            .map(|g| unit_normal(faces[g as usize]))
+            .sum();
+        unit_normal(t).dot(around) < 0.0
+    };
+    let new_flipped = |f: u32, t: [u32; 3]| {
+        let around: Vec3 = (0..3)
+            .filter_map(|k| new_across(t[k], t[(k + 1) % 3]))
+            .filter(|&(g, _)| g != f)
+            .map(|(_, tg)| unit_normal(tg))
+            .sum();
+        unit_normal(t).dot(around) < 0.0
+    };
+    edits.iter().any(|&(f, t_new)| {
+        let t = faces[f as usize];
+        unit_normal(t_new) == Vec3::ZERO
+            || new_flipped(f, t_new)
+            || (0..3).any(|k| {
+                old_across(t[k], t[(k + 1) % 3]).is_some_and(|g| {
+                    let tg = faces[g as usize];
+                    !edited(g) && new_flipped(g, tg) && !old_flipped(g, tg)
+                })
+            })
+    })
+}
+
 /// 64-bit mix (SplitMix64 finaliser).
 fn mix(mut z: u64) -> u64 {
     z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
@@ -191,7 +249,10 @@ impl Adjacency {
 ///    vertex that closes the boundary), and the two may not both have valence 3 (a lone
 ///    tetrahedron). Together these keep a 2-manifold a 2-manifold of the same topology.
 /// 3. **Fold-over guard** (not in the reference): the collapse is skipped when a surviving
-///    face around the edge would turn its normal by 90° or more, or vanish.
+///    face around the edge would turn its normal by 90° or more, or vanish. (A stricter
+///    guard that also rejects collapses leaving any face around the edge flipped, as the
+///    flips do, blocks too many collapses: in the shape test the folds made by motion then
+///    pile up until the mesh runs into `max_vertices`.)
 /// 4. **Merge**: the lower index survives with the mean of both rows (all columns); on an
 ///    open mesh, an interior vertex merged with a boundary vertex takes the boundary
 ///    vertex's position, so the boundary does not move inwards. The two faces of the edge
@@ -411,7 +472,9 @@ pub fn pack<R: VertexRows>(rows: &mut R, faces: &[[u32; 3]], alive: &[bool]) -> 
 /// on closed meshes). Flips are chosen as an independent set (rank by `Δ` most negative
 /// first, ties by edge index; no two flips share any of their 4 vertices), skipped when the
 /// edge `(cl, cr)` already exists (it would duplicate an edge) and, with `normal_check`,
-/// when either new face would turn against the old pair's summed normal. Boundary edges are
+/// when either new face would turn against the old pair's summed normal, bend the pair
+/// more than allowed, or leave a face of the pair or next to it flipped (normal against the
+/// sum of its edge neighbours' normals) that was not flipped before. Boundary edges are
 /// never flipped. The left face becomes `(e0, cr, cl)`, the right face `(e1, cl, cr)`.
 ///
 /// Returns the flipped edges as `(edge index, new edge [lo, hi])`.
@@ -480,8 +543,16 @@ pub fn flip_edges(
             }
         }
         let [left, right] = table.edge_to_face[e as usize];
-        faces[left as usize / 3] = [e0, cr, cl];
-        faces[right as usize / 3] = [e1, cl, cr];
+        let (left, right) = (left / 3, right / 3);
+        if normal_check {
+            // Not in the reference: no face of the pair or next to it may end up flipped
+            // (see `flip_folds`).
+            if flip_folds(positions, faces, table, &[(left, [e0, cr, cl]), (right, [e1, cl, cr])]) {
+                continue;
+            }
+        }
+        faces[left as usize] = [e0, cr, cl];
+        faces[right as usize] = [e1, cl, cr];
         flipped.push((e as usize, [cl.min(cr), cl.max(cr)]));
     }
     flipped

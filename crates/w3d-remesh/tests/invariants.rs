@@ -1,15 +1,17 @@
 //! Property tests: after every step + remesh round on randomly perturbed real meshes (spot,
-//! genus 0; torus, genus 1) with random smooth-plus-noise gradients, the mesh is a closed,
-//! consistently oriented 2-manifold with the same Euler characteristic, NaN-free, with
-//! target lengths inside the limits and one entry per vertex in every state array.
+//! genus 0; torus, genus 1) with random pull-plus-noise gradients, the mesh is a closed,
+//! consistently oriented 2-manifold with the same Euler characteristic, NaN-free, without
+//! zero-area faces, with target lengths inside the limits and one entry per vertex in every
+//! state array; the edge flips never flip a face; and the share of flipped faces stays
+//! bounded.
 
 mod common;
 
-use common::ClosestPoints;
+use common::{ClosestPoints, face_normal, flipped_faces};
 use glam::Vec3;
 use proptest::prelude::*;
 use w3d_core::Mesh;
-use w3d_remesh::{MeshOptimizer, RemeshOptions, check_manifold};
+use w3d_remesh::{EdgeTable, MeshOptimizer, RemeshOptions, check_manifold, ops};
 
 fn mix(mut z: u64) -> u64 {
     z = z.wrapping_add(0x9E37_79B9_7F4A_7C15);
@@ -23,25 +25,23 @@ fn noise(seed: u64) -> f32 {
     (mix(seed) >> 40) as f32 / (1u64 << 23) as f32 - 1.0
 }
 
-/// A random gradient: pull towards the unperturbed surface, plus a smooth swirl of
-/// `0.01·amp` and per-vertex noise of size `0.001·sigma` (fresh every round).
-fn gradient(
-    target: &ClosestPoints,
-    positions: &[[f32; 3]],
-    amp: f32,
-    freq: f32,
-    sigma: f32,
-    seed: u64,
-) -> Vec<[f32; 3]> {
+/// A random gradient: pull towards the unperturbed surface (the gradient of half the
+/// squared distance to it) plus per-vertex noise of size `0.001·sigma` (fresh every round).
+///
+/// No tangential "swirl" field: the optimizer divides each vertex's gradient by its own RMS,
+/// so a tangential field that outweighs the pull once the mesh is near the surface moves
+/// every vertex sideways by the full step `lr·ref_len` every round, forever. No loss does
+/// that near its minimum (there the gradient vanishes or points back), and the shear
+/// crumples any mesh by motion alone, which is not what this test is about. Noise stands in
+/// for the pixel noise of a rendering loss.
+fn gradient(target: &ClosestPoints, positions: &[[f32; 3]], sigma: f32, seed: u64) -> Vec<[f32; 3]> {
     positions
         .iter()
         .enumerate()
         .map(|(i, p)| {
-            let [x, y, z] = *p;
             let pull = Vec3::from(*p) - target.query(Vec3::from(*p)).0;
-            let swirl = [(freq * y).sin(), (freq * z).sin(), (freq * x).sin()];
             let key = seed ^ mix(i as u64);
-            std::array::from_fn(|k| pull[k] + 0.01 * amp * swirl[k] + 0.001 * sigma * noise(key.wrapping_add(k as u64)))
+            std::array::from_fn(|k| pull[k] + 0.001 * sigma * noise(key.wrapping_add(k as u64)))
         })
         .collect()
 }
@@ -54,17 +54,36 @@ fn perturbed(mesh: &Mesh, jitter: f32, seed: u64) -> Vec<[f32; 3]> {
         .collect()
 }
 
-fn run_rounds(mesh: &Mesh, jitter: f32, amp: f32, freq: f32, sigma: f32, seed: u64) -> Result<(), TestCaseError> {
+fn run_rounds(mesh: &Mesh, jitter: f32, sigma: f32, seed: u64) -> Result<(), TestCaseError> {
     let start = check_manifold(mesh.vertex_count(), mesh.triangles()).expect("input is manifold");
     let options = RemeshOptions { seed, edge_len_lims: (0.04, 0.12), ..RemeshOptions::default() };
     let mut opt = MeshOptimizer::new(perturbed(mesh, jitter, seed), mesh.triangles().to_vec(), options).unwrap();
     let (lo, hi) = options.edge_len_lims;
     let target = ClosestPoints::new(mesh.positions(), mesh.triangles(), 0.03);
+    let mut worst = 0.0f32;
     for round in 0..100 {
-        let grad = gradient(&target, opt.positions(), amp, freq, sigma, mix(seed ^ round));
+        let grad = gradient(&target, opt.positions(), sigma, mix(seed ^ round));
         opt.step(&grad).unwrap();
         opt.remesh();
         let n = opt.vertex_count();
+        let positions = opt.positions();
+        for &t in opt.triangles() {
+            prop_assert!(face_normal(positions, t) != Vec3::ZERO, "round {round}: degenerate face {t:?}");
+        }
+        // The flip pass on its own (run again on the result, which has flip candidates of
+        // its own after the collapses and splits) never flips or degenerates a face.
+        let mut faces = opt.triangles().to_vec();
+        let flipped_before = flipped_faces(positions, &faces);
+        let table = EdgeTable::new(&faces, None, n);
+        ops::flip_edges(positions, &mut faces, &table, true, true);
+        let flipped_after = flipped_faces(positions, &faces);
+        for (f, t) in faces.iter().enumerate() {
+            prop_assert!(face_normal(positions, *t) != Vec3::ZERO, "round {round}: flip made face {t:?} degenerate");
+            let kept = *t == opt.triangles()[f] && flipped_before[f];
+            prop_assert!(!flipped_after[f] || kept, "round {round}: flip_edges flipped face {t:?}");
+        }
+        let flipped = flipped_before.iter().filter(|&&f| f).count();
+        worst = worst.max(flipped as f32 / opt.triangle_count() as f32);
         let summary =
             check_manifold(n, opt.triangles()).map_err(|e| TestCaseError::fail(format!("round {round}: {e}")))?;
         prop_assert_eq!(summary.unreferenced, 0, "round {}", round);
@@ -81,26 +100,32 @@ fn run_rounds(mesh: &Mesh, jitter: f32, amp: f32, freq: f32, sigma: f32, seed: u
         prop_assert!(opt.second_moments().iter().chain(opt.relative_speeds()).all(|v| v.is_finite()));
         prop_assert!(opt.target_edge_lengths().iter().all(|&r| (lo..=hi).contains(&r)));
     }
+    // Global bounds on flipped faces before remeshing (measured over 24 random cases: worst
+    // round ≤ 5.8 % on spot and 0.8 % on the torus, last round ≤ 1.1 % and 0): motion folds
+    // faces, remeshing keeps collapsing them away.
+    let last = flipped_faces(opt.positions(), opt.triangles()).iter().filter(|&&f| f).count() as f32
+        / opt.triangle_count() as f32;
+    prop_assert!(worst <= 0.15 && last <= 0.04, "flipped faces: worst round {worst}, last round {last}");
     Ok(())
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig { cases: 1, failure_persistence: None, ..ProptestConfig::default() })]
+    #![proptest_config(ProptestConfig { cases: 2, failure_persistence: None, ..ProptestConfig::default() })]
 
     #[test]
     fn spot_stays_a_genus_0_manifold(
-        jitter in 0.0f32..0.01, amp in 0.0f32..1.0, freq in 2.0f32..12.0, sigma in 0.0f32..0.1, seed in any::<u64>()
+        jitter in 0.0f32..0.01, sigma in 0.0f32..0.3, seed in any::<u64>()
     ) {
-        run_rounds(&common::load_unit("spot.obj"), jitter, amp, freq, sigma, seed)?;
+        run_rounds(&common::load_unit("spot.obj"), jitter, sigma, seed)?;
     }
 
     #[test]
     fn torus_stays_a_genus_1_manifold(
-        jitter in 0.0f32..0.01, amp in 0.0f32..1.0, freq in 2.0f32..12.0, sigma in 0.0f32..0.1, seed in any::<u64>()
+        jitter in 0.0f32..0.01, sigma in 0.0f32..0.3, seed in any::<u64>()
     ) {
         let torus = common::load_unit("torus.obj");
         prop_assert_eq!(check_manifold(torus.vertex_count(), torus.triangles()).unwrap().genus(), Some(1));
-        run_rounds(&torus, jitter, amp, freq, sigma, seed)?;
+        run_rounds(&torus, jitter, sigma, seed)?;
     }
 }
 
@@ -112,7 +137,7 @@ fn same_seed_same_bytes() {
         let options = RemeshOptions { seed, ..RemeshOptions::default() };
         let mut opt = MeshOptimizer::from_mesh(&spot, options).unwrap();
         for round in 0..20 {
-            let grad = gradient(&target, opt.positions(), 0.5, 5.0, 0.5, round);
+            let grad = gradient(&target, opt.positions(), 0.5, round);
             opt.step(&grad).unwrap();
             opt.remesh();
         }

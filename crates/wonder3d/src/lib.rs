@@ -26,5 +26,8 @@ pub use w3d_core::{
 pub use w3d_eval as eval;
 /// The differentiable CPU rasteriser and render helpers (the `w3d-raster` crate).
 pub use w3d_raster as raster;
+/// Mesh extraction from normal maps: normal integration, coarse reconstruction (the
+/// `w3d-recon` crate).
+pub use w3d_recon as recon;
 /// Continuous remeshing: the mesh optimiser and remesh operations (the `w3d-remesh` crate).
 pub use w3d_remesh as remesh;

@@ -193,3 +193,29 @@ pub fn samples(positions: &[[f32; 3]], faces: &[[u32; 3]]) -> Vec<Vec3> {
     out.extend(faces.iter().map(|t| t.iter().map(|&v| Vec3::from(positions[v as usize])).sum::<Vec3>() / 3.0));
     out
 }
+
+/// Unnormalised face normal `cross(p1 − p0, p2 − p0)` (length = twice the area).
+pub fn face_normal(positions: &[[f32; 3]], t: [u32; 3]) -> Vec3 {
+    let [a, b, c] = t.map(|v| Vec3::from(positions[v as usize]));
+    (b - a).cross(c - a)
+}
+
+/// Flipped faces of a consistently oriented mesh: a face is flipped when its unit normal
+/// points against the sum of the unit normals of its edge neighbours.
+pub fn flipped_faces(positions: &[[f32; 3]], faces: &[[u32; 3]]) -> Vec<bool> {
+    let normals: Vec<Vec3> = faces.iter().map(|&t| face_normal(positions, t).normalize_or_zero()).collect();
+    let mut by_edge = std::collections::HashMap::with_capacity(3 * faces.len());
+    for (f, t) in faces.iter().enumerate() {
+        for k in 0..3 {
+            by_edge.insert((t[k], t[(k + 1) % 3]), f);
+        }
+    }
+    faces
+        .iter()
+        .enumerate()
+        .map(|(f, t)| {
+            let around: Vec3 = (0..3).filter_map(|k| by_edge.get(&(t[(k + 1) % 3], t[k])).map(|&g| normals[g])).sum();
+            normals[f].dot(around) < 0.0
+        })
+        .collect()
+}
