@@ -1,6 +1,9 @@
 //! Float images (`[H][W][C]`, row-major, origin top-left) and their PNG / EXR IO.
 
+use std::io::Write as _;
 use std::path::Path;
+
+use image::ImageEncoder as _;
 
 use crate::{Error, Result};
 
@@ -208,17 +211,15 @@ impl Image {
                 _ => (p[0], p[1], p[2], p[3]),
             }
         };
-        let tmp = crate::io::temp_path(path);
-        let result = exr::prelude::write_rgba_file(&tmp, w, self.height as usize, rgba)
-            .map_err(|e| match e {
+        let channels = exr::prelude::SpecificChannels::rgba(|exr::math::Vec2(x, y)| rgba(x, y));
+        let image = exr::prelude::Image::from_channels((w, self.height as usize), channels);
+        crate::io::write_atomic(path, |file| {
+            use exr::prelude::WritableImage as _;
+            image.write().to_buffered(file).map_err(|e| match e {
                 exr::error::Error::Io(io) => Error::io(path, io),
                 other => Error::format(path, "EXR encoding", other.to_string()),
             })
-            .and_then(|()| std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e)));
-        if result.is_err() {
-            let _ = std::fs::remove_file(&tmp);
-        }
-        result
+        })
     }
 }
 
@@ -231,6 +232,3 @@ pub fn srgb_to_linear(v: f32) -> f32 {
 pub fn linear_to_srgb(v: f32) -> f32 {
     if v <= 0.0031308 { v * 12.92 } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 }
 }
-
-use image::ImageEncoder as _;
-use std::io::Write as _;

@@ -314,19 +314,13 @@ impl Mesh {
     /// triangles that become degenerate and all per-vertex attributes (they may differ
     /// across seams). Returns the merged mesh and, for each input vertex, its new index.
     pub fn merge_by_position(&self) -> (Mesh, Vec<u32>) {
-        let mut index_of: HashMap<[u32; 3], u32> = HashMap::with_capacity(self.positions.len());
+        let remap = weld_by_position(&self.positions);
         let mut positions = Vec::new();
-        let remap: Vec<u32> = self
-            .positions
-            .iter()
-            .map(|p| {
-                let key = p.map(|v| if v == 0.0 { 0 } else { v.to_bits() });
-                *index_of.entry(key).or_insert_with(|| {
-                    positions.push(*p);
-                    (positions.len() - 1) as u32
-                })
-            })
-            .collect();
+        for (p, &class) in self.positions.iter().zip(&remap) {
+            if class as usize == positions.len() {
+                positions.push(*p);
+            }
+        }
         let triangles: Vec<[u32; 3]> = self
             .triangles
             .iter()
@@ -391,33 +385,45 @@ impl Mesh {
 }
 
 /// Checks raw geometry arrays as [`Mesh::new`] does (without requiring them to be
-/// non-empty): finite coordinates, fewer than 2³² vertices, indices in range and three
+/// non-empty): finite coordinates, fewer than 2³²−1 vertices, indices in range and three
 /// distinct indices per triangle. Errors name the first offending element
-/// (`positions[i].y`, `triangles[i]`). For crates that take plain arrays.
+/// (`positions[i].y`, `triangles[i]`). For crates that take plain arrays; it runs on every
+/// call of the rasteriser's ops, so valid input takes one branch-free pass and only
+/// invalid input pays for locating the first problem.
 pub fn validate_geometry(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Result<()> {
+    let finite = positions.as_flattened().iter().fold(0u32, |bad, v| bad + !v.is_finite() as u32) == 0;
+    let indices_ok = u32::try_from(positions.len()).is_ok_and(|n| {
+        n < u32::MAX
+            && triangles.iter().fold(0u32, |bad, t| {
+                let out = (t[0] >= n) | (t[1] >= n) | (t[2] >= n);
+                bad + (out | (t[0] == t[1]) | (t[1] == t[2]) | (t[0] == t[2])) as u32
+            }) == 0
+    });
+    if finite && indices_ok { Ok(()) } else { Err(first_geometry_error(positions, triangles)) }
+}
+
+/// The error [`validate_geometry`] reports for invalid arrays: the first offending element.
+fn first_geometry_error(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Error {
     if positions.len() >= u32::MAX as usize {
-        return Err(Error::invalid("positions", "fewer than 2³²−1 vertices"));
+        return Error::invalid("positions", "fewer than 2³²−1 vertices");
     }
     for (i, p) in positions.iter().enumerate() {
         for (axis, v) in ["x", "y", "z"].iter().zip(p) {
             if !v.is_finite() {
-                return Err(Error::invalid(format!("positions[{i}].{axis}"), format!("a finite number, got {v}")));
+                return Error::invalid(format!("positions[{i}].{axis}"), format!("a finite number, got {v}"));
             }
         }
     }
     let n = positions.len() as u32;
     for (i, t) in triangles.iter().enumerate() {
         if let Some(&bad) = t.iter().find(|&&v| v >= n) {
-            return Err(Error::invalid(
-                format!("triangles[{i}]"),
-                format!("vertex indices below {n}, got {bad} in {t:?}"),
-            ));
+            return Error::invalid(format!("triangles[{i}]"), format!("vertex indices below {n}, got {bad} in {t:?}"));
         }
         if t[0] == t[1] || t[1] == t[2] || t[0] == t[2] {
-            return Err(Error::invalid(format!("triangles[{i}]"), format!("three distinct vertex indices, got {t:?}")));
+            return Error::invalid(format!("triangles[{i}]"), format!("three distinct vertex indices, got {t:?}"));
         }
     }
-    Ok(())
+    unreachable!("first_geometry_error is only called for arrays that failed the scan")
 }
 
 fn check_finite<'a>(field: &str, values: impl Iterator<Item = &'a f32>) -> Result<()> {
@@ -427,6 +433,22 @@ fn check_finite<'a>(field: &str, values: impl Iterator<Item = &'a f32>) -> Resul
         }
     }
     Ok(())
+}
+
+/// For each vertex, the index of its position class: vertices with bit-identical
+/// positions (−0 and +0 equal) share a class, and classes are numbered `0, 1, …` in order
+/// of first appearance. [`Mesh::merge_by_position`] builds on it; the rasteriser uses it
+/// to match edges across UV seams.
+pub fn weld_by_position(positions: &[[f32; 3]]) -> Vec<u32> {
+    let mut class_of: HashMap<[u32; 3], u32> = HashMap::with_capacity(positions.len());
+    positions
+        .iter()
+        .map(|p| {
+            let key = p.map(|v| if v == 0.0 { 0 } else { v.to_bits() });
+            let next = class_of.len() as u32;
+            *class_of.entry(key).or_insert(next)
+        })
+        .collect()
 }
 
 /// The three undirected edges `[min, max]` of a triangle.

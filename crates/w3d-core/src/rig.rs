@@ -3,6 +3,7 @@
 //! Every crate takes its cameras from here (`DESIGN.md` §3). Rigs are independent of
 //! image resolution; a [`crate::ViewSet`] carries the images.
 
+use std::io::Write as _;
 use std::path::Path;
 
 use glam::Vec3;
@@ -171,5 +172,3 @@ impl ViewRig {
         Ok(rig)
     }
 }
-
-use std::io::Write as _;

@@ -38,8 +38,8 @@ pub struct EdgeTopology {
 impl EdgeTopology {
     /// Builds the table for a mesh. Fails on indices out of range or non-finite positions.
     pub fn new(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Result<Self> {
-        crate::raster::validate_geometry(positions, triangles)?;
-        let welded = weld_by_position(positions);
+        w3d_core::mesh::validate_geometry(positions, triangles)?;
+        let welded = w3d_core::mesh::weld_by_position(positions);
         let mut edges: HashMap<(u32, u32), [(u32, u32); 2]> = HashMap::with_capacity(triangles.len() * 2);
         let key = |a: u32, b: u32| if a < b { (a, b) } else { (b, a) };
         for (t, tri) in triangles.iter().enumerate() {
@@ -64,16 +64,6 @@ impl EdgeTopology {
             .collect();
         Ok(EdgeTopology { opposite })
     }
-}
-
-/// For each vertex, the lowest index of a vertex with a bit-identical position (−0 = +0).
-pub(crate) fn weld_by_position(positions: &[[f32; 3]]) -> Vec<u32> {
-    let mut first: HashMap<[u32; 3], u32> = HashMap::with_capacity(positions.len());
-    positions
-        .iter()
-        .enumerate()
-        .map(|(i, p)| *first.entry(p.map(|v| if v == 0.0 { 0 } else { v.to_bits() })).or_insert(i as u32))
-        .collect()
 }
 
 /// One blended pixel pair, kept for the backward pass.
@@ -123,7 +113,7 @@ fn check(
     positions: &[[f32; 3]],
     triangles: &[[u32; 3]],
 ) -> Result<()> {
-    crate::raster::validate_geometry(positions, triangles)?;
+    w3d_core::mesh::validate_geometry(positions, triangles)?;
     raster.check(positions.len(), triangles)?;
     if channels == 0 {
         return Err(Error::invalid("channels", "at least one channel"));

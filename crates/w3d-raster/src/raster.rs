@@ -97,21 +97,6 @@ pub(crate) fn count_non_finite(values: &[f32]) -> u32 {
     values.iter().fold(0u32, |n, v| n + (v.to_bits() & 0x7f80_0000 == 0x7f80_0000) as u32)
 }
 
-/// [`w3d_core::mesh::validate_geometry`] (finite positions; three distinct vertex indices
-/// below `positions.len()` per triangle) with a branch-free scan first: the detailed check,
-/// and its error, only run when the scan finds a problem.
-pub(crate) fn validate_geometry(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Result<()> {
-    let finite = count_non_finite(positions.as_flattened()) == 0;
-    let indices_ok = u32::try_from(positions.len()).is_ok_and(|n| {
-        n < u32::MAX
-            && triangles.iter().fold(0u32, |bad, t| {
-                let out = (t[0] >= n) | (t[1] >= n) | (t[2] >= n);
-                bad + (out | (t[0] == t[1]) | (t[1] == t[2]) | (t[0] == t[2])) as u32
-            }) == 0
-    });
-    if finite && indices_ok { Ok(()) } else { w3d_core::mesh::validate_geometry(positions, triangles) }
-}
-
 /// Rasterises a mesh through one camera into a `width × height` image.
 ///
 /// * Positions are world coordinates; triangles index them (any winding: there is no
@@ -154,7 +139,7 @@ pub fn rasterize_views(
     height: u32,
 ) -> Result<Vec<Raster>> {
     check_size(width, height)?;
-    validate_geometry(positions, triangles)?;
+    w3d_core::mesh::validate_geometry(positions, triangles)?;
     for (i, camera) in cameras.iter().enumerate() {
         camera.validate().map_err(|e| match e {
             Error::Invalid { field, expected } => Error::invalid(format!("cameras[{i}].{field}"), expected),
@@ -462,7 +447,7 @@ pub fn rasterize_backward(
     grad_uv: &[[f32; 2]],
     grad_depth: Option<&[f32]>,
 ) -> Result<Vec<[f32; 3]>> {
-    validate_geometry(positions, triangles)?;
+    w3d_core::mesh::validate_geometry(positions, triangles)?;
     raster.check(positions.len(), triangles)?;
     let n = raster.pixel_count();
     if grad_uv.len() != n {

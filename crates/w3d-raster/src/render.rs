@@ -5,7 +5,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 use w3d_core::{Image, Mesh, Result, ViewImages, ViewRig, ViewSet};
 
-use crate::antialias::{EdgeTopology, antialias, weld_by_position};
+use crate::antialias::{EdgeTopology, antialias};
 use crate::interpolate::interpolate;
 use crate::raster::{NO_TRIANGLE, Raster, rasterize_views};
 use crate::texture::{WrapMode, texture};
@@ -29,7 +29,7 @@ pub fn rasterize_rig(mesh: &Mesh, rig: &ViewRig, size: u32) -> Result<Vec<Raster
 
 /// Unit normals per vertex, area-weighted over all vertices sharing the position.
 fn welded_vertex_normals(mesh: &Mesh) -> Vec<f32> {
-    let weld = weld_by_position(mesh.positions());
+    let weld = w3d_core::mesh::weld_by_position(mesh.positions());
     let mut acc = vec![Vec3::ZERO; mesh.vertex_count()];
     for (t, tri) in mesh.triangles().iter().enumerate() {
         let [a, b, c] = mesh.triangle_corners(t);

@@ -47,7 +47,7 @@ fn extension(path: &Path) -> String {
 }
 
 /// A temporary path beside `path` (same directory, so a rename is atomic).
-pub(crate) fn temp_path(path: &Path) -> PathBuf {
+fn temp_path(path: &Path) -> PathBuf {
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
 }
