@@ -6,6 +6,10 @@
 //!   crate `w3d-SUITE` (e.g. `raster`, `remesh`, `eval`), then writes the medians of the
 //!   benchmarks it ran to `target/bench/SUITE.json` and prints them as a markdown table for
 //!   `docs/benchmarks.md`.
+//! - `cargo xtask bench recon [-- --meshes a,b --cases ortho,persp,presets,concave,stability]`:
+//!   the reconstruction accuracy harness (oracle views of `../shared/data/meshes`), writing
+//!   `target/bench/recon.json` and, on a full run, `docs/accuracy.md`.
+//! - `cargo xtask chart`: `docs/speed_accuracy.svg` from `target/bench/recon.json`.
 //! - `cargo xtask fixtures eval`: regenerates the peer-parity fixtures of `w3d-eval`
 //!   (Python: a venv in `target/tools/evalvenv` with trimesh, point-cloud-utils, mesh2sdf,
 //!   scikit-image from PyPI). The outputs are committed; tests never need Python.
@@ -17,6 +21,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
 
 use clap::{Parser, Subcommand};
+
+mod chart;
+mod recon;
 
 #[derive(Parser)]
 #[command(about = "wonder3d-rs project automation")]
@@ -42,6 +49,8 @@ enum Task {
         /// Which fixtures: `eval`.
         which: String,
     },
+    /// Draw the SVG charts in docs/ (speed against accuracy) from target/bench/*.json.
+    Chart,
     /// Validate GLB / glTF files with the Khronos glTF validator (installed on demand).
     ValidateGlb {
         /// Files to validate.
@@ -123,6 +132,9 @@ fn cpu_model() -> String {
 }
 
 fn bench(suite: &str, criterion_args: &[String]) -> Result<(), String> {
+    if suite == "recon" {
+        return recon::run(criterion_args);
+    }
     let start = std::time::SystemTime::now();
     let krate = format!("w3d-{suite}");
     let mut cmd = Command::new("cargo");
@@ -209,6 +221,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Task::Deny => deny(),
+        Task::Chart => chart::run(),
         Task::ValidateGlb { files } => validate_glb(&files),
         Task::Fixtures { which } => fixtures(&which),
         Task::Bench { suite, criterion_args } => bench(&suite, &criterion_args),

@@ -27,7 +27,8 @@ use std::time::Instant;
 
 use glam::Vec3;
 use rayon::prelude::*;
-use w3d_core::{Error, Mesh, Result, ViewRig, ViewSet};
+use serde::Serialize;
+use w3d_core::{Camera, Error, Mesh, Projection, Result, ViewRig, ViewSet};
 use w3d_raster::{
     EdgeTopology, antialias, antialias_backward, interpolate, interpolate_backward, rasterize_backward, rasterize_rig,
 };
@@ -44,9 +45,14 @@ pub struct CoarseOptions {
     pub lr: f32,
     /// Multiplicative learning-rate decay per step.
     pub lr_decay: f32,
-    /// Smallest and largest target edge length. The smallest should not go below about
-    /// two pixels of the views (detail finer than that is not in the data).
+    /// Smallest and largest target edge length.
     pub edge_len_lims: (f32, f32),
+    /// Density control: the target edge length at a point never goes below this many
+    /// pixels of the finest view that sees it (the image-space pixel footprint), so the mesh
+    /// carries no detail the views cannot show; 0 turns the bound off.
+    pub min_edge_pixels: f32,
+    /// Weight of the Laplacian regulariser inside the remeshing optimiser's update.
+    pub laplacian_weight: f32,
     /// Weight of the normal loss.
     pub normal_weight: f32,
     /// Weight of the mask loss.
@@ -62,9 +68,11 @@ impl Default for CoarseOptions {
     fn default() -> Self {
         CoarseOptions {
             steps: 200,
-            lr: 0.3,
+            lr: 0.2,
             lr_decay: 0.995,
             edge_len_lims: (0.015, 0.1),
+            min_edge_pixels: 2.0,
+            laplacian_weight: 0.05,
             normal_weight: 1.0,
             mask_weight: 1.0,
             grazing_epsilon: 0.1,
@@ -74,7 +82,7 @@ impl Default for CoarseOptions {
 }
 
 /// What [`reconstruct_coarse`] did.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct CoarseReport {
     /// Total loss before each step.
     pub losses: Vec<f32>,
@@ -114,13 +122,27 @@ pub fn silhouette_sphere(views: &ViewSet, rig: &ViewRig, subdivisions: u32) -> R
     w3d_remesh::icosphere(subdivisions, 0.5 * extent)
 }
 
+/// The world-space height spanned by the image of the camera that sees `p` at the finest
+/// scale (orthographic: `2·half_height`; perspective: `2·depth·tan(fov/2)`).
+fn finest_view_span(cameras: &[Camera], p: glam::Vec3) -> f32 {
+    cameras
+        .iter()
+        .map(|c| match c.projection {
+            Projection::Orthographic { half_height } => 2.0 * half_height,
+            Projection::Perspective { fov_y } => 2.0 * c.depth(p).max(1e-3) * (0.5 * fov_y).tan(),
+        })
+        .fold(f32::INFINITY, f32::min)
+}
+
 /// Fits `init` (a closed mesh in the rig's world frame) to the normal maps and masks of
-/// `views` and returns the fitted mesh with a report.
+/// `views` and returns the fitted mesh with a report. `progress` is called after every
+/// step with `(steps done, steps in all, loss before the step)`.
 pub fn reconstruct_coarse(
     views: &ViewSet,
     rig: &ViewRig,
     init: &Mesh,
     options: &CoarseOptions,
+    progress: &mut dyn FnMut(usize, usize, f32),
 ) -> Result<(Mesh, CoarseReport)> {
     views.validate(rig)?;
     let start = Instant::now();
@@ -131,10 +153,16 @@ pub fn reconstruct_coarse(
     let remesh = RemeshOptions {
         lr: options.lr,
         edge_len_lims: options.edge_len_lims,
+        laplacian_weight: options.laplacian_weight,
         seed: options.seed,
         ..Default::default()
     };
     let mut opt = MeshOptimizer::from_mesh(&init.clone().without_attributes(), remesh)?;
+    if options.min_edge_pixels > 0.0 {
+        let cameras: Vec<Camera> = rig.cameras().copied().collect();
+        let scale = options.min_edge_pixels / size as f32;
+        opt.set_min_edge_length_field(move |p| scale * finest_view_span(&cameras, glam::Vec3::from(p)));
+    }
     // Per view: target normals, mask and the geometry-aware weight, precomputed.
     let targets: Vec<(Vec<f32>, Vec<f32>, Vec<f32>)> = views
         .views
@@ -211,6 +239,9 @@ pub fn reconstruct_coarse(
             *g = [g[0] + n[0], g[1] + n[1], g[2] + n[2]];
         }
         report.losses.push(loss);
+        if !loss.is_finite() {
+            return Err(Error::invalid("views", format!("finite normal and mask values (the loss became {loss})")));
+        }
         opt.step(&grad_positions)?;
         opt.remesh();
         report.triangle_counts.push(opt.triangle_count());
@@ -218,6 +249,7 @@ pub fn reconstruct_coarse(
         let mut o = *opt.options();
         o.lr = lr;
         opt.set_options(o)?;
+        progress(report.losses.len(), options.steps, loss);
     }
     report.seconds = start.elapsed().as_secs_f64();
     Ok((opt.to_mesh()?, report))

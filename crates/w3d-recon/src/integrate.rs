@@ -48,7 +48,24 @@ impl Default for IntegrateOptions {
 /// inside its mask (1 channel) into a depth map: distance in front of `camera` along its
 /// viewing axis in world units, 0 on the background. Orthographic cameras only.
 pub fn integrate_normals(normal: &Image, mask: &Image, camera: &Camera, options: &IntegrateOptions) -> Result<Image> {
+    integrate_normals_anchored(normal, mask, camera, None, options)
+}
+
+/// [`integrate_normals`] with the silhouette pixels anchored to the depths of `anchor`
+/// (1 channel, same size; e.g. where each silhouette ray enters the visual hull) instead
+/// of the plane through the origin. Non-finite anchor values fall back to that plane.
+pub fn integrate_normals_anchored(
+    normal: &Image,
+    mask: &Image,
+    camera: &Camera,
+    anchor: Option<&Image>,
+    options: &IntegrateOptions,
+) -> Result<Image> {
     let (w, h) = (normal.width(), normal.height());
+    if let Some(a) = anchor {
+        a.expect_shape("anchor", w, h, 1)?;
+    }
+    let origin_depth = camera.depth(Vec3::ZERO) as f64;
     normal.expect_shape("normal", w, h, 3)?;
     mask.expect_shape("mask", w, h, 1)?;
     let Projection::Orthographic { half_height } = camera.projection else {
@@ -115,6 +132,12 @@ pub fn integrate_normals(normal: &Image, mask: &Image, camera: &Camera, options:
             // Anchor silhouette pixels to z = 0 (the origin plane); a tiny pull everywhere
             // keeps disconnected islands of reliable normals well posed.
             diag[index[p] as usize] += if boundary { options.boundary_weight } else { 1e-9 };
+            if boundary {
+                let z0 = anchor.map_or(0.0, |a| origin_depth - a.data()[p] as f64);
+                if z0.is_finite() {
+                    rhs[index[p] as usize] += options.boundary_weight * z0;
+                }
+            }
         }
     }
     let apply = |z: &[f64], out: &mut [f64]| {
@@ -129,7 +152,6 @@ pub fn integrate_normals(normal: &Image, mask: &Image, camera: &Camera, options:
     };
     let z = conjugate_gradients(&apply, &diag, &rhs, options.max_iterations, options.tolerance);
     // Camera-frame height z relative to the origin plane → depth along the view axis.
-    let origin_depth = camera.depth(Vec3::ZERO) as f64;
     let mut depth = vec![0.0f32; wu * hu];
     for (p, &i) in index.iter().enumerate() {
         if i != u32::MAX {
@@ -141,7 +163,7 @@ pub fn integrate_normals(normal: &Image, mask: &Image, camera: &Camera, options:
 
 /// Solves `M z = r` for symmetric positive-definite `M` (given by `apply`) with a Jacobi
 /// preconditioner `diag`, starting from zero.
-fn conjugate_gradients(
+pub(crate) fn conjugate_gradients(
     apply: &dyn Fn(&[f64], &mut [f64]),
     diag: &[f64],
     rhs: &[f64],

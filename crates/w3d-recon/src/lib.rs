@@ -19,10 +19,14 @@
 //! ```
 
 mod coarse;
+mod init;
 mod integrate;
 mod normals;
+mod pipeline;
 
 pub use coarse::{CoarseOptions, CoarseReport, reconstruct_coarse, silhouette_sphere};
+pub use init::{InitChoice, InitOptions, InitReport, initial_mesh};
+pub use pipeline::{Preset, Progress, ReconOptions, ReconReport, Stage, StageTiming, reconstruct};
 
-pub use integrate::{IntegrateOptions, integrate_normals};
+pub use integrate::{IntegrateOptions, integrate_normals, integrate_normals_anchored};
 pub use normals::{vertex_normals, vertex_normals_backward};

@@ -13,7 +13,7 @@ fn spot_is_recovered_from_its_oracle_views() {
     let views = w3d_raster::render_oracle_views(&spot, &rig, 128).unwrap();
     let init = silhouette_sphere(&views, &rig, 3).unwrap();
     let options = CoarseOptions { steps: 150, edge_len_lims: (0.025, 0.1), ..CoarseOptions::default() };
-    let (mesh, report) = reconstruct_coarse(&views, &rig, &init, &options).unwrap();
+    let (mesh, report) = reconstruct_coarse(&views, &rig, &init, &options, &mut |_, _, _| {}).unwrap();
     let metrics = evaluate(&mesh, &spot, &EvalOptions { samples: 20_000, ..EvalOptions::default() }).unwrap();
     eprintln!(
         "spot 128²: chamfer {:.4}, F@0.02 {:.3}, iou64 {:.3}, {} triangles, loss {:.4} -> {:.4}, {:.1} s",

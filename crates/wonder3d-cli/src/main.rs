@@ -4,11 +4,13 @@
 //! wonder3d info assets/spot.obj          # counts, bbox, watertight, components, genus
 //! wonder3d info assets/spot.obj --json   # the same as one JSON object
 //! wonder3d render assets/spot.obj --rig wonder3d-ortho --size 256 --out views/spot
-//! wonder3d eval pred.glb assets/spot.obj --json  # chamfer, fscore_0.01, iou_64, …
+//! wonder3d reconstruct views/spot --out spot.glb --report report.json  # init + coarse
+//! wonder3d eval spot.glb assets/spot.obj --json  # chamfer, fscore_0.01, iou_64, …
 //! ```
 
 mod eval;
 mod info;
+mod reconstruct;
 mod render;
 
 use std::process::ExitCode;
@@ -30,6 +32,8 @@ enum Command {
     Render(render::RenderArgs),
     /// Compare a predicted mesh with a ground truth (Chamfer, F-score, volume IoU, normals).
     Eval(eval::EvalArgs),
+    /// Reconstruct a closed mesh from a view-set folder (normal maps + masks).
+    Reconstruct(reconstruct::ReconstructArgs),
 }
 
 fn main() -> ExitCode {
@@ -38,6 +42,7 @@ fn main() -> ExitCode {
         Command::Info(args) => info::run(&args),
         Command::Render(args) => render::run(&args),
         Command::Eval(args) => eval::run(&args),
+        Command::Reconstruct(args) => reconstruct::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,397 @@
+//! `cargo xtask bench recon`: the reconstruction accuracy harness.
+//!
+//! Renders oracle views of real meshes (`../shared/data/meshes`, normalised to the unit
+//! cube, faces oriented outwards), reconstructs them with `w3d-recon`, evaluates the result
+//! against the original with `w3d-eval`, and writes every run to `target/bench/recon.json`.
+//! A full run (no `--meshes` filter) also writes `docs/accuracy.md`.
+//!
+//! Arguments (after `--`): `--meshes a,b` (file stems), `--cases ortho,persp,presets,
+//! concave,stability` (default all), `--size N` (default 256).
+
+use std::path::Path;
+use std::time::Instant;
+
+use serde_json::{Value, json};
+use wonder3d::eval::{EvalOptions, evaluate};
+use wonder3d::raster::render_oracle_views;
+use wonder3d::recon::{Preset, ReconOptions, reconstruct};
+use wonder3d::{Mesh, ViewRig, ViewSet, load_mesh};
+
+/// The 14 closed meshes of `../shared/data/meshes` (the ones volume IoU is defined for).
+const CLOSED: &[&str] = &[
+    "spot.obj",
+    "bob_tri.obj",
+    "armadillo.obj",
+    "cow.obj",
+    "cheburashka.obj",
+    "fandisk.obj",
+    "rocker-arm.obj",
+    "torus.obj",
+    "boot.obj",
+    "hammer.obj",
+    "wingnut.obj",
+    "plane.obj",
+    "koala_low_resolution.obj",
+    "horse.ply",
+];
+
+/// Meshes the preset sweep (speed–accuracy chart) runs on.
+const PRESET_MESHES: &[&str] = &["spot.obj", "bob_tri.obj", "armadillo.obj", "cheburashka.obj", "plane.obj"];
+
+/// One reconstruction and its scores.
+struct Run {
+    name: String,
+    case: String,
+    rig: String,
+    preset: Preset,
+    value: Value,
+}
+
+fn load_normalised(dir: &Path, file: &str) -> Result<Mesh, String> {
+    let mut mesh = load_mesh(dir.join(file)).map_err(|e| e.to_string())?.without_attributes();
+    mesh.normalize_unit_cube();
+    if mesh.signed_volume() < 0.0 {
+        mesh.flip_winding(); // horse.ply is wound inwards; oracle normals must face out
+    }
+    Ok(mesh)
+}
+
+/// Reconstructs `views` and scores the result against `truth`.
+fn score(
+    name: &str,
+    case: &str,
+    rig_name: &str,
+    truth: &Mesh,
+    views: &ViewSet,
+    rig: &ViewRig,
+    preset: Preset,
+) -> Result<Run, String> {
+    let mut options = ReconOptions::preset(preset);
+    // Development overrides: W3D_RECON_TUNE="steps=120,lo=0.02,sphere=1".
+    if let Ok(tune) = std::env::var("W3D_RECON_TUNE") {
+        for kv in tune.split(',').filter(|s| !s.is_empty()) {
+            let (k, v) = kv.split_once('=').ok_or(format!("W3D_RECON_TUNE: {kv}"))?;
+            let x: f32 = v.parse().map_err(|e| format!("W3D_RECON_TUNE {k}: {e}"))?;
+            match k {
+                "steps" => options.coarse.steps = x as usize,
+                "lo" => options.coarse.edge_len_lims.0 = x,
+                "hi" => options.coarse.edge_len_lims.1 = x,
+                "lr" => options.coarse.lr = x,
+                "decay" => options.coarse.lr_decay = x,
+                "lap" => options.coarse.laplacian_weight = x,
+                "px" => options.coarse.min_edge_pixels = x,
+                "mask" => options.coarse.mask_weight = x,
+                "eps" => options.coarse.grazing_epsilon = x,
+                "sphere" => options.init.force_sphere = x != 0.0,
+                "grid" => options.init.grid = x as usize,
+                "init_edge" => options.init.edge_length = x,
+                "smooth" => options.init.smoothing_iterations = x as usize,
+                _ => return Err(format!("W3D_RECON_TUNE: unknown key {k}")),
+            }
+        }
+    }
+    let t = Instant::now();
+    let result = reconstruct(views, rig, &options, &mut |_| {});
+    let seconds = t.elapsed().as_secs_f64();
+    let (mesh, report) = match result {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("{name:>24} {case:>12} {rig_name:>5} {preset:>8}: ERROR {e}");
+            return Ok(Run {
+                name: name.into(),
+                case: case.into(),
+                rig: rig_name.into(),
+                preset,
+                value: json!({ "mesh": name, "case": case, "rig": rig_name, "preset": preset, "error": e.to_string() }),
+            });
+        }
+    };
+    if let Ok(dir) = std::env::var("W3D_RECON_SAVE") {
+        let stem = format!("{dir}/{name}_{case}_{rig_name}_{preset}").replace([' ', '='], "_");
+        let (init, _) = wonder3d::recon::initial_mesh(views, rig, &options.init).map_err(|e| e.to_string())?;
+        wonder3d::save_mesh(format!("{stem}_init.obj"), &init).map_err(|e| e.to_string())?;
+        wonder3d::save_mesh(format!("{stem}.obj"), &mesh).map_err(|e| e.to_string())?;
+    }
+    let nan = mesh.positions().iter().flatten().any(|v| !v.is_finite());
+    let metrics = evaluate(&mesh, truth, &EvalOptions::default()).map_err(|e| e.to_string())?;
+    let topo = mesh.topology();
+    let truth_topo = truth.merge_by_position().0.topology();
+    eprintln!(
+        "{name:>24} {case:>12} {rig_name:>5} {preset:>8}: [{}] CD {:.4} F@.01 {:.3} F@.02 {:.3} IoU {:.3} NC {:.3} \
+         {} tris {:.1} s, init {:?}, genus {:?}/{:?}",
+        report.init.reason,
+        metrics.chamfer,
+        metrics.fscore_001,
+        metrics.fscore_002,
+        metrics.iou_64,
+        metrics.normal_consistency,
+        mesh.triangle_count(),
+        seconds,
+        report.init.choice,
+        topo.genus(),
+        truth_topo.genus()
+    );
+    let value = json!({
+        "mesh": name,
+        "case": case,
+        "rig": rig_name,
+        "preset": preset,
+        "seconds": seconds,
+        "init_seconds": report.init.seconds,
+        "coarse_seconds": report.coarse.seconds,
+        "triangles": mesh.triangle_count(),
+        "init": report.init,
+        "losses": [report.coarse.losses.first(), report.coarse.losses.last()],
+        "metrics": metrics,
+        "genus": topo.genus(),
+        "genus_truth": truth_topo.genus(),
+        "watertight": topo.is_watertight(),
+        "nan": nan,
+        "final_loss": report.coarse.losses.last(),
+    });
+    Ok(Run { name: name.into(), case: case.into(), rig: rig_name.into(), preset, value })
+}
+
+/// Deterministic Gaussian noise (σ) added to the normal maps inside the masks, renormalised.
+fn add_normal_noise(views: &mut ViewSet, sigma: f32, seed: u64) {
+    let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+    let mut uniform = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+    };
+    let mut gauss = move || {
+        let (u, v) = (uniform(), uniform());
+        ((-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()) as f32
+    };
+    for view in &mut views.views {
+        let mask = view.mask.data().to_vec();
+        for (n, m) in view.normal.data_mut().chunks_exact_mut(3).zip(mask) {
+            if m < 0.5 {
+                continue;
+            }
+            let v = glam::Vec3::new(n[0] + sigma * gauss(), n[1] + sigma * gauss(), n[2] + sigma * gauss());
+            let v = v.normalize_or(glam::Vec3::Z);
+            n.copy_from_slice(&v.to_array());
+        }
+    }
+}
+
+pub fn run(args: &[String]) -> Result<(), String> {
+    let mut meshes: Option<Vec<String>> = None;
+    let mut cases = vec!["ortho", "persp", "presets", "concave", "stability"];
+    let mut size = 256u32;
+    let mut it = args.iter();
+    while let Some(a) = it.next() {
+        let mut value = || it.next().cloned().ok_or(format!("{a} needs a value"));
+        match a.as_str() {
+            "--meshes" => meshes = Some(value()?.split(',').map(str::to_string).collect()),
+            "--cases" => {
+                let v = value()?;
+                cases = ["ortho", "persp", "presets", "concave", "stability"]
+                    .into_iter()
+                    .filter(|c| v.split(',').any(|x| x == *c))
+                    .collect();
+            }
+            "--size" => size = value()?.parse().map_err(|e| format!("--size: {e}"))?,
+            other => return Err(format!("unknown argument {other:?} (see xtask/src/recon.rs)")),
+        }
+    }
+    let root = crate::workspace_root();
+    let data = root.join("../shared/data/meshes");
+    let wanted = |file: &str| {
+        meshes.as_ref().is_none_or(|m| m.iter().any(|w| file.starts_with(&format!("{w}.")) || file == w))
+    };
+    let mut runs: Vec<Run> = Vec::new();
+    let ortho = ViewRig::wonder3d_ortho();
+    let persp = ViewRig::wonder3d_persp();
+    for file in CLOSED.iter().filter(|f| wanted(f)) {
+        let truth = load_normalised(&data, file)?;
+        let name = file.split('.').next().unwrap_or(file);
+        let ortho_views = render_oracle_views(&truth, &ortho, size).map_err(|e| e.to_string())?;
+        if cases.contains(&"ortho") {
+            runs.push(score(name, "oracle", "ortho", &truth, &ortho_views, &ortho, Preset::Default)?);
+        }
+        if cases.contains(&"persp") {
+            let views = render_oracle_views(&truth, &persp, size).map_err(|e| e.to_string())?;
+            runs.push(score(name, "oracle", "persp", &truth, &views, &persp, Preset::Default)?);
+        }
+        if cases.contains(&"presets") && PRESET_MESHES.contains(file) {
+            for preset in [Preset::Fast, Preset::Quality] {
+                runs.push(score(name, "oracle", "ortho", &truth, &ortho_views, &ortho, preset)?);
+            }
+        }
+        if cases.contains(&"stability") && (*file == "spot.obj" || *file == "bob_tri.obj") {
+            for sigma in [0.05f32, 0.15] {
+                let mut views = ortho_views.clone();
+                add_normal_noise(&mut views, sigma, 7);
+                let case = format!("noise σ={sigma}");
+                runs.push(score(name, &case, "ortho", &truth, &views, &ortho, Preset::Default)?);
+            }
+            // One view replaced by a wrong view: the left view shows the right view's images.
+            let mut views = ortho_views.clone();
+            let (right, left) = (2, 4);
+            let wrong = views.views[right].clone();
+            views.views[left].normal = wrong.normal;
+            views.views[left].mask = wrong.mask;
+            runs.push(score(name, "wrong view", "ortho", &truth, &views, &ortho, Preset::Default)?);
+        }
+    }
+    if cases.contains(&"concave") {
+        for (file, turn) in [("teacup.obj", false), ("teapot.obj", false), ("teacup.obj", true)] {
+            if !wanted(file) {
+                continue;
+            }
+            let mut truth = load_normalised(&data, file)?;
+            let mut name = file.split('.').next().unwrap_or(file).to_string();
+            if turn {
+                // Opening towards the front camera: rotate −90° about x (+y → +z).
+                truth.map_positions(|p| glam::Vec3::new(p.x, -p.z, p.y)).map_err(|e| e.to_string())?;
+                name.push_str(" (opening to front)");
+            }
+            let views = render_oracle_views(&truth, &ortho, size).map_err(|e| e.to_string())?;
+            runs.push(score(&name, "concave", "ortho", &truth, &views, &ortho, Preset::Default)?);
+        }
+    }
+    let out_dir = crate::target_dir().join("bench");
+    std::fs::create_dir_all(&out_dir).map_err(|e| format!("{}: {e}", out_dir.display()))?;
+    let out = out_dir.join("recon.json");
+    let all: Vec<&Value> = runs.iter().map(|r| &r.value).collect();
+    let doc = json!({ "size": size, "machine": crate::cpu_model(), "runs": all });
+    std::fs::write(&out, serde_json::to_string_pretty(&doc).unwrap_or_default())
+        .map_err(|e| format!("{}: {e}", out.display()))?;
+    eprintln!("wrote {}", out.display());
+    if meshes.is_none() && cases.len() == 5 {
+        let md = root.join("docs/accuracy.md");
+        std::fs::write(&md, accuracy_markdown(&runs, size)).map_err(|e| format!("{}: {e}", md.display()))?;
+        eprintln!("wrote {}", md.display());
+    }
+    Ok(())
+}
+
+fn f(v: &Value, path: &[&str]) -> f64 {
+    let mut v = v;
+    for p in path {
+        v = &v[*p];
+    }
+    v.as_f64().unwrap_or(f64::NAN)
+}
+
+fn table(runs: &[&Run]) -> String {
+    let mut s = String::from(
+        "| mesh | CD | F@0.01 | F@0.02 | IoU 64³ | normal cons. | triangles | seconds | init | genus (truth) |\n\
+         |---|---|---|---|---|---|---|---|---|---|\n",
+    );
+    let mut sums = [0.0f64; 7];
+    let mut count = 0.0;
+    for r in runs {
+        let v = &r.value;
+        if v.get("error").is_some() {
+            s.push_str(&format!("| {} | error: {} |||||||||\n", r.name, v["error"]));
+            continue;
+        }
+        let row = [
+            f(v, &["metrics", "chamfer"]),
+            f(v, &["metrics", "fscore_0.01"]),
+            f(v, &["metrics", "fscore_0.02"]),
+            f(v, &["metrics", "iou_64"]),
+            f(v, &["metrics", "normal_consistency"]),
+            f(v, &["triangles"]),
+            f(v, &["seconds"]),
+        ];
+        for (a, b) in sums.iter_mut().zip(row) {
+            *a += b;
+        }
+        count += 1.0;
+        s.push_str(&format!(
+            "| {} | {:.4} | {:.3} | {:.3} | {:.3} | {:.3} | {} | {:.1} | {} | {} ({}) |\n",
+            r.name,
+            row[0],
+            row[1],
+            row[2],
+            row[3],
+            row[4],
+            row[5],
+            row[6],
+            v["init"]["choice"].as_str().unwrap_or("?"),
+            v["genus"],
+            v["genus_truth"],
+        ));
+    }
+    if count > 0.0 {
+        let m: Vec<f64> = sums.iter().map(|x| x / count).collect();
+        s.push_str(&format!(
+            "| **mean** | **{:.4}** | **{:.3}** | **{:.3}** | **{:.3}** | {:.3} | {:.0} | {:.1} | | |\n",
+            m[0], m[1], m[2], m[3], m[4], m[5], m[6]
+        ));
+    }
+    s
+}
+
+fn accuracy_markdown(runs: &[Run], size: u32) -> String {
+    let pick = |case: &str, rig: &str, preset: Preset| -> Vec<&Run> {
+        runs.iter().filter(|r| r.case == case && r.rig == rig && r.preset == preset).collect()
+    };
+    let mut s = format!(
+        "# Reconstruction accuracy\n\n\
+         Generated by `cargo xtask bench recon` (do not edit by hand; prose lives in the \
+         generator, `xtask/src/recon.rs`). Oracle views: each mesh of `../shared/data/meshes`, \
+         normalised to the unit cube, rendered by `w3d-raster` into the rig at {size}², then \
+         `w3d_recon::reconstruct` with the preset named, evaluated by `w3d-eval` against the \
+         normalised original (100k samples, no alignment). Machine: {}. Seconds are wall-clock \
+         for init + coarse on 2 cores.\n\n",
+        crate::cpu_model()
+    );
+    s.push_str("## Wonder3D orthographic rig, default preset\n\n");
+    s.push_str(&table(&pick("oracle", "ortho", Preset::Default)));
+    s.push_str("\n## Wonder3D perspective rig (35 mm), default preset\n\n");
+    s.push_str(&table(&pick("oracle", "persp", Preset::Default)));
+    s.push_str("\n## Presets (orthographic rig)\n\nThe speed–accuracy chart `docs/speed_accuracy.svg` plots these.\n\n");
+    for preset in Preset::ALL {
+        let rows: Vec<&Run> = runs
+            .iter()
+            .filter(|r| r.case == "oracle" && r.rig == "ortho" && r.preset == preset)
+            .filter(|r| PRESET_MESHES.iter().any(|m| m.starts_with(&format!("{}.", r.name))))
+            .collect();
+        s.push_str(&format!("### {preset}\n\n{}\n", table(&rows)));
+    }
+    s.push_str("## Concave objects\n\n");
+    s.push_str(
+        "The concave check compares the centre and silhouette mean depths of the integrated front \
+         and back views (see `w3d_recon::initial_mesh`); `front`/`back` are centre − mean depth.\n\n\
+         | object | check | front | back | CD | F@0.02 | IoU 64³ | NaN | watertight |\n|---|---|---|---|---|---|---|---|---|\n",
+    );
+    for r in runs.iter().filter(|r| r.case == "concave") {
+        let v = &r.value;
+        s.push_str(&format!(
+            "| {} | {} | {:+.4} | {:+.4} | {:.4} | {:.3} | {:.3} | {} | {} |\n",
+            r.name,
+            v["init"]["choice"].as_str().unwrap_or("?"),
+            f(v, &["init", "front_concavity"]),
+            f(v, &["init", "back_concavity"]),
+            f(v, &["metrics", "chamfer"]),
+            f(v, &["metrics", "fscore_0.02"]),
+            f(v, &["metrics", "iou_64"]),
+            v["nan"],
+            v["watertight"],
+        ));
+    }
+    s.push_str("\n## Stability (orthographic rig, default preset)\n\n");
+    s.push_str("Gaussian noise of σ added to each normal component inside the masks (then renormalised); \"wrong view\": the left view's normal map and mask replaced by the right view's.\n\n");
+    s.push_str("| mesh | case | CD | F@0.02 | IoU 64³ | NaN | seconds |\n|---|---|---|---|---|---|---|\n");
+    for r in runs.iter().filter(|r| r.case.starts_with("noise") || r.case == "wrong view") {
+        let v = &r.value;
+        s.push_str(&format!(
+            "| {} | {} | {:.4} | {:.3} | {:.3} | {} | {:.1} |\n",
+            r.name,
+            r.case,
+            f(v, &["metrics", "chamfer"]),
+            f(v, &["metrics", "fscore_0.02"]),
+            f(v, &["metrics", "iou_64"]),
+            v["nan"],
+            f(v, &["seconds"]),
+        ));
+    }
+    s
+}
