@@ -8,8 +8,7 @@ use wonder3d::{ViewRig, ViewSet, load_mesh};
 
 #[test]
 fn spot_oracle_pipeline_reaches_the_accuracy_target() {
-    let mut spot =
-        load_mesh(concat!(env!("CARGO_MANIFEST_DIR"), "/../assets/spot.obj")).unwrap().without_attributes();
+    let mut spot = load_mesh(concat!(env!("CARGO_MANIFEST_DIR"), "/../assets/spot.obj")).unwrap().without_attributes();
     spot.normalize_unit_cube();
     let rig = ViewRig::wonder3d_ortho();
     let views = wonder3d::raster::render_oracle_views(&spot, &rig, 256).unwrap();

@@ -11,8 +11,10 @@ use serde_json::Value;
 /// GSO-30 subset from *generated* views (not oracle views), on an A100, so they are context,
 /// not a like-for-like comparison: Wonder3D++ reports init 3 s + coarse 39 s and CD 0.0193
 /// (ortho); Wonder3D v1 reports CD 0.0222 (its NeuS fit takes 2–3 minutes: 150 s drawn).
-const PUBLISHED: &[(&str, f64, f64)] =
-    &[("Wonder3D++ init+coarse (paper, A100, GSO)", 42.0, 0.0193), ("Wonder3D v1 NeuS (paper, A100, GSO)", 150.0, 0.0222)];
+const PUBLISHED: &[(&str, f64, f64)] = &[
+    ("Wonder3D++ init+coarse (paper, A100, GSO)", 42.0, 0.0193),
+    ("Wonder3D v1 NeuS (paper, A100, GSO)", 150.0, 0.0222),
+];
 
 pub fn run() -> Result<(), String> {
     let path = crate::target_dir().join("bench").join("recon.json");
@@ -20,8 +22,11 @@ pub fn run() -> Result<(), String> {
         .map_err(|e| format!("{}: {e} (run `cargo xtask bench recon` first)", path.display()))?;
     let doc: Value = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
     let runs = doc["runs"].as_array().ok_or(format!("{}: no `runs` array", path.display()))?;
-    let mut series: Vec<(&str, RGBColor, Vec<(f64, f64)>)> =
-        vec![("fast", RGBColor(230, 159, 0), vec![]), ("default", RGBColor(0, 114, 178), vec![]), ("quality", RGBColor(0, 158, 115), vec![])];
+    let mut series: Vec<(&str, RGBColor, Vec<(f64, f64)>)> = vec![
+        ("fast", RGBColor(230, 159, 0), vec![]),
+        ("default", RGBColor(0, 114, 178), vec![]),
+        ("quality", RGBColor(0, 158, 115), vec![]),
+    ];
     for r in runs {
         if r["case"] != "oracle" || r["rig"] != "ortho" {
             continue;

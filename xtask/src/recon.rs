@@ -200,9 +200,8 @@ pub fn run(args: &[String]) -> Result<(), String> {
     }
     let root = crate::workspace_root();
     let data = root.join("../shared/data/meshes");
-    let wanted = |file: &str| {
-        meshes.as_ref().is_none_or(|m| m.iter().any(|w| file.starts_with(&format!("{w}.")) || file == w))
-    };
+    let wanted =
+        |file: &str| meshes.as_ref().is_none_or(|m| m.iter().any(|w| file.starts_with(&format!("{w}.")) || file == w));
     let mut runs: Vec<Run> = Vec::new();
     let ortho = ViewRig::wonder3d_ortho();
     let persp = ViewRig::wonder3d_persp();
@@ -347,7 +346,9 @@ fn accuracy_markdown(runs: &[Run], size: u32) -> String {
     s.push_str(&table(&pick("oracle", "ortho", Preset::Default)));
     s.push_str("\n## Wonder3D perspective rig (35 mm), default preset\n\n");
     s.push_str(&table(&pick("oracle", "persp", Preset::Default)));
-    s.push_str("\n## Presets (orthographic rig)\n\nThe speed–accuracy chart `docs/speed_accuracy.svg` plots these.\n\n");
+    s.push_str(
+        "\n## Presets (orthographic rig)\n\nThe speed–accuracy chart `docs/speed_accuracy.svg` plots these.\n\n",
+    );
     for preset in Preset::ALL {
         let rows: Vec<&Run> = runs
             .iter()

@@ -151,13 +151,8 @@ pub fn initial_mesh(views: &ViewSet, rig: &ViewRig, options: &InitOptions) -> Re
         let camera = weak_perspective(&true_camera);
         let view = &views.views[v];
         let anchor = hull_entry_depth(&grid, &hull, &true_camera, &view.mask)?;
-        let depth = integrate_normals_anchored(
-            &view.normal,
-            &view.mask,
-            &camera,
-            Some(&anchor),
-            &IntegrateOptions::default(),
-        )?;
+        let depth =
+            integrate_normals_anchored(&view.normal, &view.mask, &camera, Some(&anchor), &IntegrateOptions::default())?;
         if let Some(slot) = [front, back].iter().position(|&f| f == v) {
             concavity[slot] = centre_minus_mean_depth(&depth, &view.mask);
             lean[slot] = radial_normal_lean(&view.normal, &view.mask, &camera);
