@@ -16,13 +16,16 @@ const PUBLISHED: &[(&str, f64, f64)] = &[
     ("Wonder3D v1 NeuS (paper, A100, GSO)", 150.0, 0.0222),
 ];
 
+/// One preset's points: (name, colour, (seconds, Chamfer) per mesh).
+type Series = (&'static str, RGBColor, Vec<(f64, f64)>);
+
 pub fn run() -> Result<(), String> {
     let path = crate::target_dir().join("bench").join("recon.json");
     let text = std::fs::read_to_string(&path)
         .map_err(|e| format!("{}: {e} (run `cargo xtask bench recon` first)", path.display()))?;
     let doc: Value = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
     let runs = doc["runs"].as_array().ok_or(format!("{}: no `runs` array", path.display()))?;
-    let mut series: Vec<(&str, RGBColor, Vec<(f64, f64)>)> = vec![
+    let mut series: Vec<Series> = vec![
         ("fast", RGBColor(230, 159, 0), vec![]),
         ("default", RGBColor(0, 114, 178), vec![]),
         ("quality", RGBColor(0, 158, 115), vec![]),

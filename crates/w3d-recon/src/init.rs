@@ -387,8 +387,8 @@ fn screened_poisson(grid: &Grid, points: &[OrientedPoint], screening: f64) -> Ve
         let Some(corners) = grid.corners(p.position) else { continue };
         let density = p.area as f64 / (h * h * h);
         for &(node, w) in &corners {
-            for k in 0..3 {
-                field[node][k] += w as f64 * density * p.normal[k] as f64;
+            for (f, n) in field[node].iter_mut().zip(p.normal.to_array()) {
+                *f += w as f64 * density * n as f64;
             }
         }
         screen.push((corners, screening * p.area as f64 / (h * h)));
