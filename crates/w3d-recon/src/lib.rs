@@ -1,20 +1,35 @@
-//! Cascaded mesh extraction for wonder3d-rs (Wonder3D++ §"mesh extraction"): the pieces
-//! that turn six normal maps and masks into a mesh. So far: [`integrate_normals`]
-//! (normal map → depth map, the first step of the geometric initialisation) and
-//! [`vertex_normals`] / [`vertex_normals_backward`] (the exact gradient that lets a
-//! normal loss move vertices). Frames and units follow `w3d-core`: canonical y-up world
-//! frame, depth along each camera's viewing axis in world units.
+//! Cascaded mesh extraction for wonder3d-rs (Wonder3D++ §"mesh extraction"): six normal
+//! maps and masks in, a closed mesh out. [`reconstruct`] runs the stages in order:
+//!
+//! 1. [`initial_mesh`]: front and back normal maps integrated to depth
+//!    ([`integrate_normals_anchored`], silhouettes anchored where their rays enter the
+//!    visual hull), the concave check, a dense-grid screened Poisson surface carved by the
+//!    visual hull, marching tetrahedra and simplification — or a silhouette-sized sphere
+//!    when a view is concave;
+//! 2. [`reconstruct_coarse`]: differentiable rendering through `w3d-raster` with the
+//!    geometry-aware normal loss and the mask loss, gradients through the rasteriser's
+//!    backward passes and [`vertex_normals_backward`], continuous remeshing (`w3d-remesh`)
+//!    after every step, and density bounded below by the views' pixel footprint.
+//!
+//! Frames and units follow `w3d-core`: the canonical y-up world frame of the rig, lengths in
+//! unit-cube units. Accuracy and speed per preset are in `docs/accuracy.md`.
 //!
 //! ```
-//! use w3d_recon::{vertex_normals, vertex_normals_backward};
+//! use w3d_core::ViewRig;
+//! use w3d_recon::{Preset, ReconOptions, reconstruct};
 //!
-//! // A tetrahedron; pull every vertex normal towards +y and get position gradients.
-//! let positions = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-//! let triangles = [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]];
-//! let normals = vertex_normals(&positions, &triangles)?;
-//! assert!((normals[3][2] - 0.0).abs() > 0.1); // the apex normal leans towards +z
-//! let grad = vertex_normals_backward(&positions, &triangles, &[[0.0, -1.0, 0.0]; 4])?;
-//! assert_eq!(grad.len(), 4);
+//! // Oracle views of a sphere, then a quick reconstruction.
+//! let truth = w3d_remesh::icosphere(4, 0.35)?;
+//! let rig = ViewRig::wonder3d_ortho();
+//! let views = w3d_raster::render_oracle_views(&truth, &rig, 64)?;
+//! let mut options = ReconOptions::preset(Preset::Fast);
+//! options.coarse.steps = 20;
+//! let (mesh, report) = reconstruct(&views, &rig, &options, &mut |_| {})?;
+//! assert!(mesh.topology().is_watertight());
+//! let radius = mesh.positions().iter().map(|p| glam::Vec3::from(*p).length()).sum::<f32>()
+//!     / mesh.vertex_count() as f32;
+//! assert!((radius - 0.35).abs() < 0.03, "mean radius {radius}");
+//! println!("{} triangles in {:.2} s ({})", report.triangles, report.seconds, report.init.reason);
 //! # Ok::<(), w3d_core::Error>(())
 //! ```
 

@@ -15,11 +15,11 @@ use crate::init::{InitOptions, InitReport, initial_mesh};
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Preset {
-    /// Coarser mesh, fewer steps: a preview in a few seconds.
+    /// Coarser mesh (edges from 0.03), 60 steps: a preview in a few seconds.
     Fast,
-    /// The balance used by `wonder3d reconstruct` and the demo.
+    /// Edges from 0.02, 120 steps: the balance used by `wonder3d reconstruct` and the demo.
     Default,
-    /// Finer mesh, more steps, finer Poisson grid.
+    /// Finer mesh (edges down to 0.015), 200 steps.
     Quality,
 }
 
@@ -68,15 +68,15 @@ impl ReconOptions {
     pub fn preset(preset: Preset) -> Self {
         let base = ReconOptions { init: InitOptions::default(), coarse: CoarseOptions::default() };
         match preset {
-            Preset::Default => base,
-            Preset::Fast => ReconOptions {
+            Preset::Default => ReconOptions {
                 init: InitOptions { edge_length: 0.05, ..base.init },
-                coarse: CoarseOptions { steps: 80, lr_decay: 0.99, edge_len_lims: (0.025, 0.1), ..base.coarse },
+                coarse: CoarseOptions { steps: 120, lr_decay: 0.99, edge_len_lims: (0.02, 0.1), ..base.coarse },
             },
-            Preset::Quality => ReconOptions {
-                init: InitOptions { grid: 96, edge_length: 0.03, ..base.init },
-                coarse: CoarseOptions { steps: 300, lr_decay: 0.996, edge_len_lims: (0.01, 0.1), ..base.coarse },
+            Preset::Fast => ReconOptions {
+                init: InitOptions { edge_length: 0.06, ..base.init },
+                coarse: CoarseOptions { steps: 60, lr_decay: 0.985, edge_len_lims: (0.03, 0.1), ..base.coarse },
             },
+            Preset::Quality => base,
         }
     }
 }
