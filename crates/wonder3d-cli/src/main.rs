@@ -5,11 +5,13 @@
 //! wonder3d info assets/spot.obj --json   # the same as one JSON object
 //! wonder3d render assets/spot.obj --rig wonder3d-ortho --size 256 --out views/spot
 //! wonder3d eval pred.glb assets/spot.obj --json  # chamfer, fscore_0.01, iou_64, …
+//! wonder3d texture assets/spot.obj views/spot --normalize --out spot.glb  # uv atlas + baked texture
 //! ```
 
 mod eval;
 mod info;
 mod render;
+mod texture;
 
 use std::process::ExitCode;
 
@@ -30,6 +32,8 @@ enum Command {
     Render(render::RenderArgs),
     /// Compare a predicted mesh with a ground truth (Chamfer, F-score, volume IoU, normals).
     Eval(eval::EvalArgs),
+    /// Texture a mesh from colour views: uv atlas, baked texture, GLB or OBJ out.
+    Texture(texture::TextureArgs),
 }
 
 fn main() -> ExitCode {
@@ -38,6 +42,7 @@ fn main() -> ExitCode {
         Command::Info(args) => info::run(&args),
         Command::Render(args) => render::run(&args),
         Command::Eval(args) => eval::run(&args),
+        Command::Texture(args) => texture::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
