@@ -161,37 +161,50 @@ pub(crate) fn shade(
 /// coloured 8-neighbours takes their mean), then fills what is still empty with the mean
 /// colour, and encodes to an sRGB `[H][W][3]` buffer.
 pub(crate) fn dilate_and_encode(mut texels: Vec<Option<Vec3>>, size: usize, iterations: u32) -> Vec<f32> {
+    let neighbours = |i: usize| {
+        let (x, y) = ((i % size) as i64, (i / size) as i64);
+        (-1..=1i64)
+            .flat_map(move |dy| (-1..=1i64).map(move |dx| (x + dx, y + dy)))
+            .filter(move |&(nx, ny)| (nx, ny) != (x, y) && nx >= 0 && ny >= 0 && nx < size as i64 && ny < size as i64)
+            .map(move |(nx, ny)| ny as usize * size + nx as usize)
+    };
+    // The ring to fill next: empty texels next to coloured ones.
+    let mut queued = vec![false; size * size];
+    let mut ring: Vec<usize> =
+        (0..size * size).filter(|&i| texels[i].is_none() && neighbours(i).any(|j| texels[j].is_some())).collect();
+    for &i in &ring {
+        queued[i] = true;
+    }
     for _ in 0..iterations {
-        let next: Vec<Option<Vec3>> = (0..size * size)
-            .into_par_iter()
-            .map(|i| {
-                if texels[i].is_some() {
-                    return texels[i];
-                }
-                let (x, y) = ((i % size) as i64, (i / size) as i64);
-                let (mut sum, mut count) = (Vec3::ZERO, 0);
-                for dy in -1..=1 {
-                    for dx in -1..=1 {
-                        let (nx, ny) = (x + dx, y + dy);
-                        if nx >= 0
-                            && ny >= 0
-                            && nx < size as i64
-                            && ny < size as i64
-                            && let Some(c) = texels[ny as usize * size + nx as usize]
-                        {
-                            sum += c;
-                            count += 1;
-                        }
-                    }
-                }
-                (count > 0).then(|| sum / count as f32)
-            })
-            .collect();
-        let grew = next.iter().zip(&texels).any(|(a, b)| a.is_some() != b.is_some());
-        texels = next;
-        if !grew {
+        if ring.is_empty() {
             break;
         }
+        let values: Vec<Vec3> = ring
+            .par_iter()
+            .map(|&i| {
+                let (mut sum, mut count) = (Vec3::ZERO, 0);
+                for j in neighbours(i) {
+                    if let Some(c) = texels[j] {
+                        sum += c;
+                        count += 1;
+                    }
+                }
+                sum / count as f32
+            })
+            .collect();
+        for (&i, v) in ring.iter().zip(values) {
+            texels[i] = Some(v);
+        }
+        let mut next = Vec::new();
+        for &i in &ring {
+            for j in neighbours(i) {
+                if texels[j].is_none() && !queued[j] {
+                    queued[j] = true;
+                    next.push(j);
+                }
+            }
+        }
+        ring = next;
     }
     let filled: Vec<Vec3> = texels.iter().flatten().copied().collect();
     let mean = if filled.is_empty() { Vec3::splat(0.5) } else { filled.iter().sum::<Vec3>() / filled.len() as f32 };

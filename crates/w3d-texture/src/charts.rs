@@ -147,15 +147,44 @@ pub(crate) fn grow_charts(surface: &Surface, faces: &[u32], min_cos: f64) -> Vec
     charts
 }
 
-/// Merges small charts into neighbours: repeatedly, the chart of smallest area below
-/// `small_area` joins the adjacent chart it shares the most edges with, provided every
-/// face of the union stays within the cone `min_cos` of the union's mean normal (the
-/// next neighbour is tried otherwise). Returns the surviving charts.
+/// A chart's normal cone: the area-weighted normal sum and an upper bound of the angle
+/// (radians) between any face normal and the sum's direction.
+#[derive(Clone, Copy)]
+struct Cone {
+    sum: DVec3,
+    half_angle: f64,
+}
+
+impl Cone {
+    fn of(surface: &Surface, faces: &[u32]) -> Cone {
+        let sum = faces.iter().map(|&f| surface.normals[f as usize] * surface.areas[f as usize]).sum::<DVec3>();
+        let axis = sum.normalize_or_zero();
+        let half_angle = faces
+            .iter()
+            .filter(|&&f| surface.areas[f as usize] > 0.0)
+            .map(|&f| surface.normals[f as usize].dot(axis).clamp(-1.0, 1.0).acos())
+            .fold(0.0, f64::max);
+        Cone { sum, half_angle }
+    }
+
+    /// A cone containing both (bounded through the angles between the axes).
+    fn union(self, other: Cone) -> Cone {
+        let sum = self.sum + other.sum;
+        let axis = sum.normalize_or_zero();
+        let reach = |c: Cone| c.sum.normalize_or_zero().dot(axis).clamp(-1.0, 1.0).acos() + c.half_angle;
+        Cone { sum, half_angle: reach(self).max(reach(other)) }
+    }
+}
+
+/// Merges small charts into neighbours: in order of increasing area, a chart below
+/// `small_area` joins the adjacent chart it shares the most edges with whose union stays
+/// within the normal cone `max_angle` (radians; bounded conservatively through the charts'
+/// own cones), trying the next neighbour otherwise. Returns the surviving charts.
 pub(crate) fn merge_small_charts(
     surface: &Surface,
     charts: Vec<Vec<u32>>,
     small_area: f64,
-    min_cos: f64,
+    max_angle: f64,
 ) -> Vec<Vec<u32>> {
     let mut chart_of = vec![u32::MAX; surface.triangles.len()];
     for (c, faces) in charts.iter().enumerate() {
@@ -163,9 +192,10 @@ pub(crate) fn merge_small_charts(
             chart_of[f as usize] = c as u32;
         }
     }
-    let mut charts: Vec<Option<Vec<u32>>> = charts.into_iter().map(Some).collect();
     let area = |faces: &[u32]| faces.iter().map(|&f| surface.areas[f as usize]).sum::<f64>();
-    let mut areas: Vec<f64> = charts.iter().map(|c| area(c.as_deref().unwrap_or(&[]))).collect();
+    let mut areas: Vec<f64> = charts.iter().map(|c| area(c)).collect();
+    let mut cones: Vec<Cone> = charts.iter().map(|c| Cone::of(surface, c)).collect();
+    let mut charts: Vec<Option<Vec<u32>>> = charts.into_iter().map(Some).collect();
     let mut order: Vec<usize> = (0..charts.len()).filter(|&c| areas[c] < small_area).collect();
     order.sort_by(|&a, &b| areas[a].total_cmp(&areas[b]).then(a.cmp(&b)));
     for c in order {
@@ -184,24 +214,16 @@ pub(crate) fn merge_small_charts(
         let mut candidates: Vec<(usize, u32)> = shared.into_iter().map(|(d, n)| (n, d)).collect();
         candidates.sort_by(|a, b| b.cmp(a));
         for (_, d) in candidates {
-            let other = charts[d as usize].as_ref().expect("live chart");
-            let union_normal = faces
-                .iter()
-                .chain(other.iter())
-                .map(|&f| surface.normals[f as usize] * surface.areas[f as usize])
-                .sum::<DVec3>()
-                .normalize_or_zero();
-            let fits = faces
-                .iter()
-                .chain(other.iter())
-                .all(|&f| surface.areas[f as usize] <= 0.0 || surface.normals[f as usize].dot(union_normal) >= min_cos);
-            if fits {
+            let d = d as usize;
+            let union = cones[c].union(cones[d]);
+            if union.half_angle <= max_angle {
                 let moved = charts[c].take().expect("live chart");
                 for &f in &moved {
-                    chart_of[f as usize] = d;
+                    chart_of[f as usize] = d as u32;
                 }
-                areas[d as usize] += areas[c];
-                charts[d as usize].as_mut().expect("live chart").extend(moved);
+                areas[d] += areas[c];
+                cones[d] = union;
+                charts[d].as_mut().expect("live chart").extend(moved);
                 break;
             }
         }

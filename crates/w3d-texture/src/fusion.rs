@@ -1,7 +1,7 @@
 //! Sampling the colour views with visibility, per-vertex colour fusion and propagation
 //! to vertices no view sees.
 
-use glam::Vec3;
+use glam::{Mat3, Vec3};
 use rayon::prelude::*;
 use w3d_core::image::srgb_to_linear;
 use w3d_core::{Camera, Error, Projection, Result, ViewRig, ViewSet};
@@ -20,6 +20,10 @@ const MASK_THRESHOLD: f32 = 0.5;
 /// and the view's linear colours.
 pub(crate) struct ViewSampler {
     camera: Camera,
+    /// World-to-camera rotation (the transposed camera basis) and the viewing axis,
+    /// precomputed for [`ViewSampler::sample`].
+    to_camera: Mat3,
+    forward: Vec3,
     width: u32,
     height: u32,
     /// Per pixel: front-most depth of the mesh, or a negative value where the pixel is
@@ -74,21 +78,38 @@ pub(crate) fn samplers(
                 Projection::Orthographic { half_height } => (2.0 * half_height / h as f32, false),
                 Projection::Perspective { fov_y } => (2.0 * (0.5 * fov_y).tan() / h as f32, true),
             };
-            ViewSampler { camera, width: w, height: h, depth, colour, pixel_size, perspective }
+            ViewSampler::new(camera, w, h, depth, colour, pixel_size, perspective)
         })
         .collect())
 }
 
 impl ViewSampler {
+    fn new(
+        camera: Camera,
+        width: u32,
+        height: u32,
+        depth: Vec<f32>,
+        colour: Vec<[f32; 3]>,
+        pixel_size: f32,
+        perspective: bool,
+    ) -> Self {
+        let (to_camera, forward) = (camera.basis().transpose(), camera.forward());
+        ViewSampler { camera, to_camera, forward, width, height, depth, colour, pixel_size, perspective }
+    }
+
     /// The linear colour this view shows at surface point `p` with unit normal `n`, and
     /// its weight `max(0, −n·d)^k · (visible bilinear coverage)`; `None` where the view
     /// does not see the point (back-facing, occluded, outside the image or the mask).
     pub fn sample(&self, p: Vec3, n: Vec3, exponent: f32) -> Option<(f32, Vec3)> {
-        let cos = -n.dot(self.camera.view_direction(p));
+        let direction = if self.perspective { (p - self.camera.eye).normalize_or(self.forward) } else { self.forward };
+        let cos = -n.dot(direction);
         if cos <= 0.0 {
             return None;
         }
-        let q = self.camera.project(p, self.width, self.height);
+        // Camera::project with the basis precomputed.
+        let (w, h) = (self.width as f32, self.height as f32);
+        let ndc = self.camera.camera_to_ndc(self.to_camera * (p - self.camera.eye), w / h);
+        let q = Vec3::new((ndc.x + 1.0) * 0.5 * w, (1.0 - ndc.y) * 0.5 * h, ndc.z);
         let tolerance = DEPTH_TOLERANCE_PIXELS * self.pixel_size * if self.perspective { q.z.max(0.0) } else { 1.0 };
         let (fx, fy) = (q.x - 0.5, q.y - 0.5);
         let (x0, y0) = (fx.floor(), fy.floor());
@@ -109,7 +130,9 @@ impl ViewSampler {
                 coverage += w;
             }
         }
-        (coverage > 1e-4).then(|| (cos.powf(exponent) * coverage, sum / coverage))
+        let weight =
+            if exponent.fract() == 0.0 && exponent <= 16.0 { cos.powi(exponent as i32) } else { cos.powf(exponent) };
+        (coverage > 1e-4).then(|| (weight * coverage, sum / coverage))
     }
 }
 

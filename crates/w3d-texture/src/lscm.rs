@@ -23,8 +23,8 @@ pub(crate) struct ChartLayout {
 }
 
 /// Conjugate-gradient limits of [`lscm`].
-const CG_MAX_ITERATIONS: usize = 400;
-const CG_RELATIVE_TOLERANCE: f64 = 1e-8;
+const CG_MAX_ITERATIONS: usize = 200;
+const CG_RELATIVE_TOLERANCE: f64 = 1e-6;
 
 impl ChartLayout {
     /// Local indexing of a chart, with the projection onto its mean-normal plane.

@@ -129,8 +129,14 @@ fn shapes(uv: &[DVec2], triangles: &[[u32; 3]], scale: f64, padding: i32) -> [Sh
         for y in 0..height {
             for x in 0..width {
                 if occupied[y * width + x] {
-                    let centre = rotate(lo + DVec2::new(x as f64 + 0.5, y as f64 + 0.5), r) - lo_r;
-                    cells[centre.y.floor() as usize * w_r + centre.x.floor() as usize] = true;
+                    // Cell (x, y) turned by r quarter turns about the box.
+                    let (xr, yr) = match r {
+                        0 => (x, y),
+                        1 => (height - 1 - y, x),
+                        2 => (width - 1 - x, height - 1 - y),
+                        _ => (y, width - 1 - x),
+                    };
+                    cells[yr * w_r + xr] = true;
                 }
             }
         }
