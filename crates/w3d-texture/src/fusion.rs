@@ -302,15 +302,8 @@ mod tests {
         // The image shows x in [-1, 2]: only vertices with x ≤ 1 (plus tolerance) are inside.
         let depth =
             raster.triangle.iter().zip(&raster.depth).map(|(&t, &d)| if t != NO_TRIANGLE { d } else { -1.0 }).collect();
-        let sampler = ViewSampler {
-            camera,
-            width: w,
-            height: h,
-            depth,
-            colour: vec![[0.2, 0.4, 0.6]; (w * h) as usize],
-            pixel_size: 3.0 / h as f32,
-            perspective: false,
-        };
+        let colour = vec![[0.2, 0.4, 0.6]; (w * h) as usize];
+        let sampler = ViewSampler::new(camera, w, h, depth, colour, 3.0 / h as f32, false);
         let fused = fuse(&surface, &normals, &[sampler], 4.0).unwrap();
         let seen = fused.seen.iter().filter(|&&s| s).count();
         assert!(seen >= 4 && seen < fused.seen.len(), "{seen}");
