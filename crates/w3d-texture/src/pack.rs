@@ -52,6 +52,8 @@ struct Shape {
     /// Box width and height in cells.
     width: usize,
     height: usize,
+    /// Indices of the (up to 4) longest spans.
+    widest: Vec<usize>,
 }
 
 /// The x range of triangle `t` within the horizontal strip `y0 ≤ y ≤ y1` (`None` if the
@@ -109,14 +111,15 @@ fn shapes(uv: &[DVec2], triangles: &[[u32; 3]], scale: f64, padding: i32) -> [Sh
             horizontal[y * width + a as usize..y * width + b as usize + 2 * p].fill(true);
         }
     }
+    // Vertical growth: a cell is occupied if one of the 2p + 1 core rows at or below it is.
     let mut occupied = vec![false; width * height];
-    for y in 0..core_h {
+    let mut last = vec![usize::MAX; width];
+    for y in 0..height {
         for x in 0..width {
-            if horizontal[y * width + x] {
-                for yy in y..=y + 2 * p {
-                    occupied[yy * width + x] = true;
-                }
+            if y < core_h && horizontal[y * width + x] {
+                last[x] = y;
             }
+            occupied[y * width + x] = last[x] != usize::MAX && last[x] + 2 * p >= y;
         }
     }
     let lo = base - DVec2::splat(padding as f64);
@@ -156,7 +159,10 @@ fn shapes(uv: &[DVec2], triangles: &[[u32; 3]], scale: f64, padding: i32) -> [Sh
                 }
             }
         }
-        Shape { lo: lo_r, spans, width: w_r, height: h_r }
+        let mut widest: Vec<usize> = (0..spans.len()).collect();
+        widest.sort_by_key(|&k| std::cmp::Reverse(spans[k].2 - spans[k].1));
+        widest.truncate(4);
+        Shape { lo: lo_r, spans, width: w_r, height: h_r, widest }
     })
 }
 
@@ -166,12 +172,27 @@ struct Grid {
     height: usize,
     words: usize,
     bits: Vec<u64>,
+    /// Longest run of free cells per row.
+    longest_free: Vec<usize>,
 }
 
 impl Grid {
     fn new(width: usize, height: usize) -> Self {
         let words = width.div_ceil(64);
-        Grid { width, height, words, bits: vec![0; words * height] }
+        Grid { width, height, words, bits: vec![0; words * height], longest_free: vec![width; height] }
+    }
+
+    fn update_longest_free(&mut self, y: usize) {
+        let (mut best, mut run) = (0, 0);
+        for x in 0..self.width {
+            if self.bits[y * self.words + x / 64] >> (x % 64) & 1 == 0 {
+                run += 1;
+                best = best.max(run);
+            } else {
+                run = 0;
+            }
+        }
+        self.longest_free[y] = best;
     }
 
     /// First occupied cell of row `y` in `[from, to)`.
@@ -222,6 +243,13 @@ impl Grid {
         // The span that blocked last is tried first: obstacles tend to repeat.
         let mut hint = 0usize;
         for y in 0..=max_top.min(self.height) - h {
+            // Rows without a free run as long as the widest spans rule `y` out at once.
+            if shape.widest.iter().any(|&k| {
+                let (r, a, b) = shape.spans[k];
+                self.longest_free[y + r as usize] < (b - a) as usize
+            }) {
+                continue;
+            }
             let mut x = 0usize;
             'scan: while x <= x_max {
                 for k in std::iter::once(hint).chain(0..shape.spans.len()) {
@@ -242,6 +270,9 @@ impl Grid {
     fn place(&mut self, shape: &Shape, x: usize, y: usize) {
         for &(r, a, b) in &shape.spans {
             self.fill(y + r as usize, x + a as usize, x + b as usize);
+        }
+        for r in 0..shape.height {
+            self.update_longest_free(y + r);
         }
     }
 }
