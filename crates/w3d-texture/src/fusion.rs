@@ -13,6 +13,9 @@ use crate::charts::Surface;
 /// point's depth).
 const DEPTH_TOLERANCE_PIXELS: f32 = 2.0;
 
+/// Jacobi rounds of neighbour averaging on the propagated colours.
+const PROPAGATION_SMOOTHING_ROUNDS: usize = 8;
+
 /// Mask value from which a view pixel counts as foreground.
 const MASK_THRESHOLD: f32 = 0.5;
 
@@ -155,7 +158,7 @@ pub(crate) fn welded_normals(surface: &Surface) -> Vec<Vec3> {
 
 /// Fuses the views into welded-vertex colours (weighted mean of the views that see each
 /// vertex), then propagates colours to unseen vertices over the edge graph: breadth-first
-/// from coloured neighbours, then 32 Jacobi rounds of neighbour averaging on the unseen
+/// from coloured neighbours, then [`PROPAGATION_SMOOTHING_ROUNDS`] Jacobi rounds of neighbour averaging on the unseen
 /// vertices only (a discrete harmonic fill). Parts of the mesh no seen vertex reaches get
 /// the mean seen colour. Errors when no view sees any vertex.
 pub(crate) fn fuse(
@@ -238,7 +241,7 @@ pub(crate) fn fuse(
         colours[v] = mean;
     }
     let unseen: Vec<usize> = (0..n).filter(|&v| !seen[v]).collect();
-    for _ in 0..32 {
+    for _ in 0..PROPAGATION_SMOOTHING_ROUNDS {
         let next: Vec<Vec3> = unseen
             .par_iter()
             .map(|&v| {
