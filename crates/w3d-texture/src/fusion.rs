@@ -158,9 +158,10 @@ pub(crate) fn welded_normals(surface: &Surface) -> Vec<Vec3> {
 
 /// Fuses the views into welded-vertex colours (weighted mean of the views that see each
 /// vertex), then propagates colours to unseen vertices over the edge graph: breadth-first
-/// from coloured neighbours, then [`PROPAGATION_SMOOTHING_ROUNDS`] Jacobi rounds of neighbour averaging on the unseen
-/// vertices only (a discrete harmonic fill). Parts of the mesh no seen vertex reaches get
-/// the mean seen colour. Errors when no view sees any vertex.
+/// from coloured neighbours, then [`PROPAGATION_SMOOTHING_ROUNDS`] Jacobi rounds of
+/// neighbour averaging on the unseen vertices only (smoothing towards a harmonic fill).
+/// Parts of the mesh no seen vertex reaches get the mean seen colour. Errors when no view
+/// sees any vertex.
 pub(crate) fn fuse(
     surface: &Surface,
     normals: &[Vec3],
