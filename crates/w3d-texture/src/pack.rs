@@ -284,11 +284,17 @@ fn place_all(shapes: &[[Shape; 4]], order: &[usize], size: usize) -> Option<Vec<
     let mut grid = Grid::new(size, size);
     let mut placed = vec![(0u8, 0usize, 0usize); shapes.len()];
     for &c in order {
-        let best = shapes[c]
-            .par_iter()
-            .enumerate()
-            .filter_map(|(r, shape)| grid.find(shape, size).map(|(x, y)| (y + shape.height, y, x, r as u8)))
-            .min();
+        // Rotations in turn, each search bounded by the best top so far.
+        let mut best: Option<(usize, usize, usize, u8)> = None; // (top, y, x, rotation)
+        for (r, shape) in shapes[c].iter().enumerate() {
+            let limit = best.map_or(size, |b| b.0);
+            if let Some((x, y)) = grid.find(shape, limit) {
+                let candidate = (y + shape.height, y, x, r as u8);
+                if best.is_none_or(|b| candidate < b) {
+                    best = Some(candidate);
+                }
+            }
+        }
         let (_, y, x, r) = best?;
         grid.place(&shapes[c][r as usize], x, y);
         placed[c] = (r, x, y);
