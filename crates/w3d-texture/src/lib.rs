@@ -103,7 +103,8 @@ pub struct TexturedMesh {
     /// `write_obj`).
     pub mesh: Mesh,
     /// The vertex-colour fallback: the input positions and triangles as given, with
-    /// position-welded smooth normals and the fused (and propagated) sRGB vertex colours.
+    /// position-welded smooth normals and the fused (and propagated) sRGB vertex colours
+    /// (the mesh [`fuse_vertex_colours`] returns).
     pub vertex_coloured: Mesh,
     /// Measurements.
     pub report: BakeReport,
@@ -120,6 +121,73 @@ pub enum BakeStage {
     Baking,
     /// Dilating across chart borders and encoding the texture.
     Dilating,
+}
+
+/// The vertex-colour result of [`fuse_vertex_colours`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct VertexColoured {
+    /// The input positions and triangles as given, with position-welded smooth normals and
+    /// the fused (and propagated) sRGB vertex colours.
+    pub mesh: Mesh,
+    /// Views with a colour image that took part.
+    pub views_used: usize,
+    /// Fraction of (position-welded) vertices at least one view sees.
+    pub seen_vertex_fraction: f64,
+}
+
+/// Validates the exponent, rasterises the views and fuses per-vertex colours.
+fn fuse_views(
+    mesh: &Mesh,
+    views: &ViewSet,
+    rig: &ViewRig,
+    k: f32,
+) -> Result<(Vec<fusion::ViewSampler>, Surface, Vec<Vec3>, fusion::WeldedColours)> {
+    if !(k.is_finite() && k >= 0.0) {
+        return Err(Error::invalid("view_weight_exponent", format!("a finite value ≥ 0, got {k}")));
+    }
+    let samplers = fusion::samplers(mesh.positions(), mesh.triangles(), views, rig)?;
+    let surface = Surface::new(mesh.positions(), mesh.triangles());
+    let normals = fusion::welded_normals(&surface);
+    let fused = fusion::fuse(&surface, &normals, &samplers, k)?;
+    Ok((samplers, surface, normals, fused))
+}
+
+fn unit_normal(n: Vec3) -> [f32; 3] {
+    if n == Vec3::ZERO { [0.0, 1.0, 0.0] } else { n.to_array() }
+}
+
+fn vertex_coloured_mesh(
+    mesh: &Mesh,
+    surface: &Surface,
+    normals: &[Vec3],
+    fused: &fusion::WeldedColours,
+) -> Result<Mesh> {
+    let srgb = |c: Vec3| c.to_array().map(|v| linear_to_srgb(v.clamp(0.0, 1.0)));
+    Mesh::new(mesh.positions().to_vec(), mesh.triangles().to_vec())?
+        .with_normals(surface.weld.iter().map(|&w| unit_normal(normals[w as usize])).collect())?
+        .with_colours(surface.weld.iter().map(|&w| srgb(fused.colours[w as usize])).collect())
+}
+
+fn seen_fraction(fused: &fusion::WeldedColours) -> f64 {
+    fused.seen.iter().filter(|&&s| s).count() as f64 / fused.seen.len() as f64
+}
+
+/// Only the per-vertex part of [`bake`]: fuses the views into vertex colours (weights
+/// `|cos|^k` with `k = options.view_weight_exponent`, visibility from the rasteriser) and
+/// propagates them to unseen vertices; no atlas, no texture. The fallback for viewers
+/// without textures, and much cheaper than a bake.
+pub fn fuse_vertex_colours(
+    mesh: &Mesh,
+    views: &ViewSet,
+    rig: &ViewRig,
+    options: &TextureOptions,
+) -> Result<VertexColoured> {
+    let (samplers, surface, normals, fused) = fuse_views(mesh, views, rig, options.view_weight_exponent)?;
+    Ok(VertexColoured {
+        mesh: vertex_coloured_mesh(mesh, &surface, &normals, &fused)?,
+        views_used: samplers.len(),
+        seen_vertex_fraction: seen_fraction(&fused),
+    })
 }
 
 /// Textures `mesh` from the colour images of `views` (seen through `rig`); see the crate
@@ -140,17 +208,11 @@ pub fn bake_with_progress(
     progress: &mut dyn FnMut(BakeStage),
 ) -> Result<TexturedMesh> {
     let k = options.view_weight_exponent;
-    if !(k.is_finite() && k >= 0.0) {
-        return Err(Error::invalid("view_weight_exponent", format!("a finite value ≥ 0, got {k}")));
-    }
     if options.dilation > options.size {
         return Err(Error::invalid("dilation", format!("at most the texture size, got {}", options.dilation)));
     }
     progress(BakeStage::FusingVertexColours);
-    let samplers = fusion::samplers(mesh.positions(), mesh.triangles(), views, rig)?;
-    let surface = Surface::new(mesh.positions(), mesh.triangles());
-    let normals = fusion::welded_normals(&surface);
-    let fused = fusion::fuse(&surface, &normals, &samplers, k)?;
+    let (samplers, surface, normals, fused) = fuse_views(mesh, views, rig, k)?;
 
     progress(BakeStage::BuildingAtlas);
     let atlas = build_atlas(mesh, &options.atlas())?;
@@ -174,20 +236,15 @@ pub fn bake_with_progress(
     progress(BakeStage::Dilating);
     let size = options.size;
     let texture = Image::new(size, size, 3, bake::dilate_and_encode(texels, size as usize, options.dilation))?;
-    let unit_normal = |n: Vec3| if n == Vec3::ZERO { [0.0, 1.0, 0.0] } else { n.to_array() };
     let textured = Mesh::new(atlas.positions.clone(), atlas.triangles.clone())?
         .with_normals(out_normals.iter().map(|&n| unit_normal(n)).collect())?
         .with_uvs(atlas.uvs.clone())?
         .with_texture(texture)?;
-    let srgb = |c: Vec3| c.to_array().map(|v| linear_to_srgb(v.clamp(0.0, 1.0)));
-    let vertex_coloured = Mesh::new(mesh.positions().to_vec(), mesh.triangles().to_vec())?
-        .with_normals(surface.weld.iter().map(|&w| unit_normal(normals[w as usize])).collect())?
-        .with_colours(surface.weld.iter().map(|&w| srgb(fused.colours[w as usize])).collect())?;
-    let seen_vertices = fused.seen.iter().filter(|&&s| s).count();
+    let vertex_coloured = vertex_coloured_mesh(mesh, &surface, &normals, &fused)?;
     let report = BakeReport {
         atlas: atlas.report,
         views_used: samplers.len(),
-        seen_vertex_fraction: seen_vertices as f64 / fused.seen.len() as f64,
+        seen_vertex_fraction: seen_fraction(&fused),
         seen_texel_fraction: if covered > 0 { seen_texels as f64 / covered as f64 } else { 0.0 },
     };
     Ok(TexturedMesh { mesh: textured, vertex_coloured, report })

@@ -3,7 +3,7 @@
 use w3d_core::io::{read_gltf, read_obj, write_glb, write_obj};
 use w3d_core::{Mesh, ViewRig, ViewSet, load_mesh};
 use w3d_raster::render_oracle_views;
-use w3d_texture::{BakeStage, TextureOptions, bake, bake_with_progress};
+use w3d_texture::{BakeStage, TextureOptions, bake, bake_with_progress, fuse_vertex_colours};
 
 /// The teacup (open: the handle is a separate tube open at both ends; the cup's inside is
 /// concave) with vertex colours that vary smoothly with position.
@@ -65,7 +65,11 @@ fn exports_round_trip() {
     let rig = ViewRig::wonder3d_ortho();
     let views = render_oracle_views(&truth, &rig, 96).unwrap();
     let options = TextureOptions { size: 256, ..TextureOptions::default() };
-    let textured = bake(&truth.clone().without_attributes(), &views, &rig, &options).unwrap();
+    let geometry = truth.clone().without_attributes();
+    let textured = bake(&geometry, &views, &rig, &options).unwrap();
+    let fused = fuse_vertex_colours(&geometry, &views, &rig, &options).unwrap();
+    assert_eq!(fused.mesh, textured.vertex_coloured);
+    assert_eq!(fused.seen_vertex_fraction, textured.report.seen_vertex_fraction);
     let dir = tempfile::tempdir().unwrap();
     let glb = dir.path().join("teacup.glb");
     write_glb(&glb, &textured.mesh).unwrap();

@@ -5,7 +5,7 @@ use std::time::Duration;
 
 use indicatif::{ProgressBar, ProgressStyle};
 use w3d_core::{Result, ViewSet, load_mesh, save_mesh};
-use w3d_texture::{BakeStage, TextureOptions, bake_with_progress};
+use w3d_texture::{BakeStage, TextureOptions, bake_with_progress, fuse_vertex_colours};
 
 /// Arguments of `wonder3d texture`.
 #[derive(clap::Args)]
@@ -55,6 +55,17 @@ pub fn run(args: &TextureArgs) -> Result<()> {
         view_weight_exponent: args.exponent,
         ..TextureOptions::default()
     };
+    if args.vertex_colours {
+        let fused = fuse_vertex_colours(&mesh, &views, &rig, &options)?;
+        save_mesh(&args.out, &fused.mesh)?;
+        println!(
+            "wrote {}: {} views, vertex colours, seen vertices {:.1} %",
+            args.out.display(),
+            fused.views_used,
+            100.0 * fused.seen_vertex_fraction
+        );
+        return Ok(());
+    }
     let spinner = ProgressBar::new_spinner();
     spinner.set_style(ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}").expect("valid template"));
     spinner.enable_steady_tick(Duration::from_millis(120));
@@ -73,11 +84,7 @@ pub fn run(args: &TextureArgs) -> Result<()> {
     spinner.finish_and_clear();
     let textured = result?;
     let r = textured.report;
-    if args.vertex_colours {
-        save_mesh(&args.out, &textured.vertex_coloured)?;
-    } else {
-        save_mesh(&args.out, &textured.mesh)?;
-    }
+    save_mesh(&args.out, &textured.mesh)?;
     println!(
         "wrote {}: {} views, {} charts, atlas utilisation {:.1} %, angle distortion {:.2}°, seen vertices {:.1} %, seen texels {:.1} %",
         args.out.display(),
