@@ -2,9 +2,10 @@
 //! into a textured mesh. [`bake`] fuses the views into per-vertex colours (visibility from
 //! the rasteriser, weights `|cos(view, normal)|^k`), propagates colours to vertices no view
 //! sees, builds a UV atlas ([`build_atlas`]: normal-cone charts, least-squares conformal
-//! maps, skyline packing with padding), projects the views into the atlas texels with the
+//! maps, bit-grid packing with padding), projects the views into the atlas texels with the
 //! same visibility and weights, fills unseen texels from the vertex colours and dilates
-//! across chart borders.
+//! across chart borders. [`fuse_vertex_colours`] is the per-vertex part alone (the
+//! vertex-colour fallback).
 //!
 //! Conventions: positions in the canonical frame (`DESIGN.md` §3); uvs in the OBJ
 //! convention of [`Mesh::with_uvs`] (v up); view colours are sRGB in `[0, 1]` and are
