@@ -16,6 +16,12 @@
 //! - `cargo xtask validate-glb FILE...`: runs the Khronos glTF validator (npm package
 //!   `gltf-validator`, installed into `target/tools/node` on first use; needs `node` and
 //!   `npm`) and fails if any file has an error.
+//! - `cargo xtask load-glb FILE... [--vertices N] [--triangles M]`: loads each file with
+//!   three.js' `GLTFLoader` in node (npm package `three`, installed into
+//!   `target/tools/node-three` on first use) and fails unless the loaded scene has the
+//!   vertex and index counts of the file's accessors (and the given counts), uvs on every
+//!   mesh, and a base-colour texture wherever the file has one. Node has no image decoder,
+//!   so texture images are checked for being present, not decoded.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
@@ -56,6 +62,18 @@ enum Task {
         /// Files to validate.
         #[arg(required = true)]
         files: Vec<PathBuf>,
+    },
+    /// Load GLB files with three.js' GLTFLoader in node and check their counts.
+    LoadGlb {
+        /// Files to load.
+        #[arg(required = true)]
+        files: Vec<PathBuf>,
+        /// Expected vertex count of every file.
+        #[arg(long)]
+        vertices: Option<usize>,
+        /// Expected triangle count of every file.
+        #[arg(long)]
+        triangles: Option<usize>,
     },
 }
 
@@ -217,12 +235,83 @@ fn validate_glb(files: &[PathBuf]) -> Result<(), String> {
     run(Command::new("node").current_dir(&dir).arg(&script).args(&files))
 }
 
+/// The pinned three.js release and the script that loads each file with its GLTFLoader.
+const THREE: &str = "three@0.180.0";
+const LOAD_SCRIPT: &str = r#"import fs from 'fs';
+// GLTFLoader reads `self.URL`; node has no DOM image decoder, so images resolve to a stub
+// (their presence is checked, not their pixels: the Khronos validator checks the PNG).
+globalThis.self = globalThis;
+const THREE = await import('three');
+const { GLTFLoader } = await import('three/examples/jsm/loaders/GLTFLoader.js');
+THREE.ImageLoader.prototype.load = function (url, onLoad) {
+  const image = { width: 1, height: 1, src: url };
+  setTimeout(() => onLoad && onLoad(image), 0);
+  return image;
+};
+const args = process.argv.slice(2);
+const [expectVertices, expectTriangles, ...files] = args;
+let failed = false;
+for (const f of files) {
+  let json, gltf;
+  let fileVertices = 0, fileIndices = 0;
+  try {
+    const buf = fs.readFileSync(f);
+    if (buf.toString('latin1', 0, 4) !== 'glTF') throw new Error('not a GLB file');
+    json = JSON.parse(buf.subarray(20, 20 + buf.readUInt32LE(12)).toString());
+    for (const m of json.meshes) for (const p of m.primitives) {
+      fileVertices += json.accessors[p.attributes.POSITION].count;
+      fileIndices += json.accessors[p.indices].count;
+    }
+    const data = buf.buffer.slice(buf.byteOffset, buf.byteOffset + buf.byteLength);
+    gltf = await new Promise((resolve, reject) => new GLTFLoader().parse(data, '', resolve, reject));
+  } catch (e) {
+    console.log(`${f}: not loaded: ${e.message ?? e}`);
+    failed = true;
+    continue;
+  }
+  let vertices = 0, indices = 0, meshes = 0, uv = true, textured = false;
+  gltf.scene.traverse((o) => {
+    if (!o.isMesh) return;
+    meshes += 1;
+    vertices += o.geometry.attributes.position.count;
+    indices += o.geometry.index ? o.geometry.index.count : 0;
+    uv = uv && !!o.geometry.attributes.uv;
+    textured = textured || !!(o.material && o.material.map);
+  });
+  const wantTexture = (json.textures ?? []).length > 0;
+  const problems = [];
+  if (meshes === 0) problems.push('no meshes');
+  if (vertices !== fileVertices || indices !== fileIndices) problems.push(`file has ${fileVertices} vertices / ${fileIndices} indices`);
+  if (expectVertices !== '-' && vertices !== Number(expectVertices)) problems.push(`expected ${expectVertices} vertices`);
+  if (expectTriangles !== '-' && indices !== 3 * Number(expectTriangles)) problems.push(`expected ${expectTriangles} triangles`);
+  if (wantTexture && !(uv && textured)) problems.push('texture or uvs not loaded');
+  console.log(`${f}: ${meshes} meshes, ${vertices} vertices, ${indices / 3} triangles, uv ${uv}, texture ${textured}${problems.length ? ' -- ' + problems.join('; ') : ''}`);
+  if (problems.length) failed = true;
+}
+process.exit(failed ? 1 : 0);
+"#;
+
+fn load_glb(files: &[PathBuf], vertices: Option<usize>, triangles: Option<usize>) -> Result<(), String> {
+    let dir = workspace_root().join("target").join("tools").join("node-three");
+    if !dir.join("node_modules").join("three").is_dir() {
+        std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        eprintln!("installing {THREE} into {}", dir.display());
+        run(Command::new("npm").args(["install", "--silent", "--no-save", "--prefix"]).arg(&dir).arg(THREE))?;
+    }
+    let script = dir.join("load.mjs");
+    std::fs::write(&script, LOAD_SCRIPT).map_err(|e| format!("{}: {e}", script.display()))?;
+    let count = |n: Option<usize>| n.map_or_else(|| "-".to_string(), |n| n.to_string());
+    let files: Vec<PathBuf> = files.iter().map(|f| std::path::absolute(f).unwrap_or_else(|_| f.clone())).collect();
+    run(Command::new("node").current_dir(&dir).arg(&script).arg(count(vertices)).arg(count(triangles)).args(&files))
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Task::Deny => deny(),
         Task::Chart => chart::run(),
         Task::ValidateGlb { files } => validate_glb(&files),
+        Task::LoadGlb { files, vertices, triangles } => load_glb(&files, vertices, triangles),
         Task::Fixtures { which } => fixtures(&which),
         Task::Bench { suite, criterion_args } => bench(&suite, &criterion_args),
     };

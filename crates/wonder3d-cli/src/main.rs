@@ -6,12 +6,16 @@
 //! wonder3d render assets/spot.obj --rig wonder3d-ortho --size 256 --out views/spot
 //! wonder3d reconstruct views/spot --out spot.glb --report report.json  # init + coarse
 //! wonder3d eval spot.glb assets/spot.obj --json  # chamfer, fscore_0.01, iou_64, …
+//! wonder3d texture assets/spot.obj views/spot --normalize --out spot.glb  # uv atlas + baked texture
+//! wonder3d demo --out demo                     # the whole pipeline on the bundled spot
 //! ```
 
+mod demo;
 mod eval;
 mod info;
 mod reconstruct;
 mod render;
+mod texture;
 
 use std::process::ExitCode;
 
@@ -34,6 +38,10 @@ enum Command {
     Eval(eval::EvalArgs),
     /// Reconstruct a closed mesh from a view-set folder (normal maps + masks).
     Reconstruct(reconstruct::ReconstructArgs),
+    /// Texture a mesh from colour views: uv atlas, baked texture, GLB or OBJ out.
+    Texture(texture::TextureArgs),
+    /// The whole pipeline on the bundled spot, no downloads: views → mesh → texture → GLB + report.
+    Demo(demo::DemoArgs),
 }
 
 fn main() -> ExitCode {
@@ -43,6 +51,8 @@ fn main() -> ExitCode {
         Command::Render(args) => render::run(&args),
         Command::Eval(args) => eval::run(&args),
         Command::Reconstruct(args) => reconstruct::run(&args),
+        Command::Texture(args) => texture::run(&args),
+        Command::Demo(args) => demo::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -69,3 +69,31 @@ fn eval_of_a_mesh_against_itself_is_at_the_sampling_floor() {
     assert!(json["chamfer"].as_f64().unwrap() < 0.006, "{json}");
     assert!(json["iou_64"].as_f64().unwrap() > 0.99, "{json}");
 }
+
+#[test]
+fn texture_bakes_rendered_views_into_a_glb_and_an_obj() {
+    let dir = tempfile::tempdir().unwrap();
+    let views = dir.path().join("views");
+    let spot = assets().join("spot.obj");
+    let spot = spot.to_str().unwrap();
+    let run = wonder3d(&["render", spot, "--size", "64", "--out", views.to_str().unwrap()]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let glb = dir.path().join("spot.glb");
+    let args = ["texture", spot, views.to_str().unwrap(), "--normalize", "--size", "128", "--out"];
+    let run = wonder3d(&[&args[..], &[glb.to_str().unwrap()]].concat());
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(stdout.contains("charts") && stdout.contains("6 views"), "{stdout}");
+    let mesh = w3d_core::load_mesh(&glb).unwrap();
+    assert_eq!(mesh.texture().unwrap().width(), 128);
+    assert!(mesh.uvs().is_some());
+    let obj = dir.path().join("spot_vc.obj");
+    let run = wonder3d(&[&args[..], &[obj.to_str().unwrap(), "--vertex-colours"]].concat());
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let mesh = w3d_core::load_mesh(&obj).unwrap();
+    assert!(mesh.colours().is_some() && mesh.texture().is_none());
+    // Bad input names the problem.
+    let run = wonder3d(&["texture", spot, dir.path().to_str().unwrap(), "--out", glb.to_str().unwrap()]);
+    assert!(!run.status.success());
+    assert!(String::from_utf8_lossy(&run.stderr).contains("cameras.json"));
+}

@@ -31,3 +31,6 @@ pub use w3d_raster as raster;
 pub use w3d_recon as recon;
 /// Continuous remeshing: the mesh optimiser and remesh operations (the `w3d-remesh` crate).
 pub use w3d_remesh as remesh;
+/// Texturing: vertex-colour fusion, UV atlas, baking and dilation (the `w3d-texture`
+/// crate).
+pub use w3d_texture as texture;

@@ -1,0 +1,318 @@
+//! Sampling the colour views with visibility, per-vertex colour fusion and propagation
+//! to vertices no view sees.
+
+use glam::{Mat3, Vec3};
+use rayon::prelude::*;
+use w3d_core::image::srgb_to_linear;
+use w3d_core::{Camera, Error, Projection, Result, ViewRig, ViewSet};
+use w3d_raster::{NO_TRIANGLE, rasterize_views};
+
+use crate::charts::Surface;
+
+/// Depth tolerance of the visibility test, in pixels (world size of one pixel at the
+/// point's depth).
+const DEPTH_TOLERANCE_PIXELS: f32 = 2.0;
+
+/// Jacobi rounds of neighbour averaging on the propagated colours.
+const PROPAGATION_SMOOTHING_ROUNDS: usize = 8;
+
+/// Mask value from which a view pixel counts as foreground.
+const MASK_THRESHOLD: f32 = 0.5;
+
+/// One colour view ready for sampling: the geometry's raster (front-most depth per pixel)
+/// and the view's linear colours.
+pub(crate) struct ViewSampler {
+    camera: Camera,
+    /// World-to-camera rotation (the transposed camera basis) and the viewing axis,
+    /// precomputed for [`ViewSampler::sample`].
+    to_camera: Mat3,
+    forward: Vec3,
+    width: u32,
+    height: u32,
+    /// Per pixel: front-most depth of the mesh, or a negative value where the pixel is
+    /// background in the raster or the mask.
+    depth: Vec<f32>,
+    /// Linear RGB per pixel.
+    colour: Vec<[f32; 3]>,
+    /// World size of a pixel: at unit depth for perspective cameras, absolute for orthographic.
+    pixel_size: f32,
+    perspective: bool,
+}
+
+/// Samplers for every view of `views` that has a colour image, with the mesh rasterised
+/// through the rig at the views' size. Errors when the set does not match the rig or no
+/// view has colours.
+pub(crate) fn samplers(
+    positions: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+    views: &ViewSet,
+    rig: &ViewRig,
+) -> Result<Vec<ViewSampler>> {
+    rig.validate()?;
+    views.validate(rig)?;
+    let with_colour: Vec<usize> = (0..views.views.len()).filter(|&i| views.views[i].colour.is_some()).collect();
+    if with_colour.is_empty() {
+        return Err(Error::invalid("views", "at least one view with a colour image"));
+    }
+    let (w, h) = (views.width(), views.height());
+    let cameras: Vec<Camera> = with_colour.iter().map(|&i| rig.views[i].camera).collect();
+    let rasters = rasterize_views(positions, triangles, &cameras, w, h)?;
+    Ok(rasters
+        .into_par_iter()
+        .zip(with_colour)
+        .map(|(raster, i)| {
+            let images = &views.views[i];
+            let colour_image = images.colour.as_ref().expect("filtered on colour");
+            let mask = images.mask.data();
+            let depth = raster
+                .triangle
+                .iter()
+                .zip(&raster.depth)
+                .zip(mask)
+                .map(|((&t, &d), &m)| if t != NO_TRIANGLE && m >= MASK_THRESHOLD { d } else { -1.0 })
+                .collect();
+            let colour = colour_image
+                .data()
+                .chunks_exact(3)
+                .map(|c| [0, 1, 2].map(|k| srgb_to_linear(c[k].clamp(0.0, 1.0))))
+                .collect();
+            let camera = raster.camera;
+            let (pixel_size, perspective) = match camera.projection {
+                Projection::Orthographic { half_height } => (2.0 * half_height / h as f32, false),
+                Projection::Perspective { fov_y } => (2.0 * (0.5 * fov_y).tan() / h as f32, true),
+            };
+            ViewSampler::new(camera, w, h, depth, colour, pixel_size, perspective)
+        })
+        .collect())
+}
+
+impl ViewSampler {
+    fn new(
+        camera: Camera,
+        width: u32,
+        height: u32,
+        depth: Vec<f32>,
+        colour: Vec<[f32; 3]>,
+        pixel_size: f32,
+        perspective: bool,
+    ) -> Self {
+        let (to_camera, forward) = (camera.basis().transpose(), camera.forward());
+        ViewSampler { camera, to_camera, forward, width, height, depth, colour, pixel_size, perspective }
+    }
+
+    /// The linear colour this view shows at surface point `p` with unit normal `n`, and
+    /// its weight `max(0, −n·d)^k · (visible bilinear coverage)`; `None` where the view
+    /// does not see the point (back-facing, occluded, outside the image or the mask).
+    pub fn sample(&self, p: Vec3, n: Vec3, exponent: f32) -> Option<(f32, Vec3)> {
+        let direction = if self.perspective { (p - self.camera.eye).normalize_or(self.forward) } else { self.forward };
+        let cos = -n.dot(direction);
+        if cos <= 0.0 {
+            return None;
+        }
+        // Camera::project with the basis precomputed.
+        let (w, h) = (self.width as f32, self.height as f32);
+        let ndc = self.camera.camera_to_ndc(self.to_camera * (p - self.camera.eye), w / h);
+        let q = Vec3::new((ndc.x + 1.0) * 0.5 * w, (1.0 - ndc.y) * 0.5 * h, ndc.z);
+        let tolerance = DEPTH_TOLERANCE_PIXELS * self.pixel_size * if self.perspective { q.z.max(0.0) } else { 1.0 };
+        let (fx, fy) = (q.x - 0.5, q.y - 0.5);
+        let (x0, y0) = (fx.floor(), fy.floor());
+        let (tx, ty) = (fx - x0, fy - y0);
+        let mut sum = Vec3::ZERO;
+        let mut coverage = 0.0f32;
+        for (dx, dy, w) in
+            [(0, 0, (1.0 - tx) * (1.0 - ty)), (1, 0, tx * (1.0 - ty)), (0, 1, (1.0 - tx) * ty), (1, 1, tx * ty)]
+        {
+            let (x, y) = (x0 as i64 + dx, y0 as i64 + dy);
+            if x < 0 || y < 0 || x >= self.width as i64 || y >= self.height as i64 || w <= 0.0 {
+                continue;
+            }
+            let i = y as usize * self.width as usize + x as usize;
+            let d = self.depth[i];
+            if d >= 0.0 && (d - q.z).abs() <= tolerance {
+                sum += Vec3::from(self.colour[i]) * w;
+                coverage += w;
+            }
+        }
+        let weight =
+            if exponent.fract() == 0.0 && exponent <= 16.0 { cos.powi(exponent as i32) } else { cos.powf(exponent) };
+        (coverage > 1e-4).then(|| (weight * coverage, sum / coverage))
+    }
+}
+
+/// Per-vertex colours of the welded surface (linear RGB) and whether a view saw each.
+pub(crate) struct WeldedColours {
+    pub colours: Vec<Vec3>,
+    pub seen: Vec<bool>,
+}
+
+/// Area-weighted unit normals of the welded vertices.
+pub(crate) fn welded_normals(surface: &Surface) -> Vec<Vec3> {
+    let mut acc = vec![glam::DVec3::ZERO; surface.positions.len()];
+    for (t, (&n, &a)) in surface.triangles.iter().zip(surface.normals.iter().zip(&surface.areas)) {
+        for &v in t {
+            acc[v as usize] += n * a;
+        }
+    }
+    acc.into_iter().map(|n| n.normalize_or_zero().as_vec3()).collect()
+}
+
+/// Fuses the views into welded-vertex colours (weighted mean of the views that see each
+/// vertex), then propagates colours to unseen vertices over the edge graph: breadth-first
+/// from coloured neighbours, then [`PROPAGATION_SMOOTHING_ROUNDS`] Jacobi rounds of
+/// neighbour averaging on the unseen vertices only (smoothing towards a harmonic fill).
+/// Parts of the mesh no seen vertex reaches get the mean seen colour. Errors when no view
+/// sees any vertex.
+pub(crate) fn fuse(
+    surface: &Surface,
+    normals: &[Vec3],
+    samplers: &[ViewSampler],
+    exponent: f32,
+) -> Result<WeldedColours> {
+    let fused: Vec<Option<Vec3>> = surface
+        .positions
+        .par_iter()
+        .zip(normals)
+        .map(|(p, &n)| {
+            let p = p.as_vec3();
+            let (mut sum, mut weight) = (Vec3::ZERO, 0.0f32);
+            for s in samplers {
+                if let Some((w, c)) = s.sample(p, n, exponent) {
+                    sum += c * w;
+                    weight += w;
+                }
+            }
+            (weight > 0.0).then(|| sum / weight)
+        })
+        .collect();
+    let seen: Vec<bool> = fused.iter().map(Option::is_some).collect();
+    let seen_count = seen.iter().filter(|&&s| s).count();
+    if seen_count == 0 {
+        return Err(Error::invalid("views", "at least one view that sees the mesh (no vertex is visible in any view)"));
+    }
+    let mean = fused.iter().flatten().sum::<Vec3>() / seen_count as f32;
+    let mut colours: Vec<Vec3> = fused.iter().map(|c| c.unwrap_or(Vec3::ZERO)).collect();
+    if seen_count == colours.len() {
+        return Ok(WeldedColours { colours, seen });
+    }
+    // Vertex adjacency (CSR) from the welded triangles.
+    let n = colours.len();
+    let mut edges: Vec<(u32, u32)> = surface
+        .triangles
+        .iter()
+        .flat_map(|t| [0, 1, 2].map(|k| (t[k], t[(k + 1) % 3])))
+        .flat_map(|(a, b)| [(a, b), (b, a)])
+        .filter(|(a, b)| a != b)
+        .collect();
+    edges.sort_unstable();
+    edges.dedup();
+    let mut start = vec![0usize; n + 1];
+    for &(a, _) in &edges {
+        start[a as usize + 1] += 1;
+    }
+    for i in 0..n {
+        start[i + 1] += start[i];
+    }
+    let neighbours = |v: usize| edges[start[v]..start[v + 1]].iter().map(|e| e.1 as usize);
+    let mut known = seen.clone();
+    let mut frontier: Vec<usize> = (0..n).filter(|&v| !known[v]).collect();
+    loop {
+        let layer: Vec<(usize, Vec3)> = frontier
+            .iter()
+            .filter_map(|&v| {
+                let (mut sum, mut count) = (Vec3::ZERO, 0);
+                for u in neighbours(v) {
+                    if known[u] {
+                        sum += colours[u];
+                        count += 1;
+                    }
+                }
+                (count > 0).then(|| (v, sum / count as f32))
+            })
+            .collect();
+        if layer.is_empty() {
+            break;
+        }
+        for &(v, c) in &layer {
+            colours[v] = c;
+            known[v] = true;
+        }
+        frontier.retain(|&v| !known[v]);
+    }
+    for v in frontier {
+        colours[v] = mean;
+    }
+    let unseen: Vec<usize> = (0..n).filter(|&v| !seen[v]).collect();
+    for _ in 0..PROPAGATION_SMOOTHING_ROUNDS {
+        let next: Vec<Vec3> = unseen
+            .par_iter()
+            .map(|&v| {
+                let (mut sum, mut count) = (Vec3::ZERO, 0);
+                for u in neighbours(v) {
+                    sum += colours[u];
+                    count += 1;
+                }
+                if count > 0 { sum / count as f32 } else { colours[v] }
+            })
+            .collect();
+        for (&v, c) in unseen.iter().zip(next) {
+            colours[v] = c;
+        }
+    }
+    Ok(WeldedColours { colours, seen })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A strip of quads along x, `n` quads long, in the plane z = 0.
+    fn strip(n: usize) -> Surface {
+        let mut p = Vec::new();
+        for i in 0..=n {
+            p.push([i as f32, 0.0, 0.0]);
+            p.push([i as f32, 1.0, 0.0]);
+        }
+        let mut t = Vec::new();
+        for i in 0..n as u32 {
+            t.push([2 * i, 2 * i + 2, 2 * i + 3]);
+            t.push([2 * i, 2 * i + 3, 2 * i + 1]);
+        }
+        Surface::new(&p, &t)
+    }
+
+    /// Propagation alone: a sampler-free fusion cannot run, so drive `fuse` with one
+    /// orthographic view that sees only the left end of the strip.
+    #[test]
+    fn unseen_vertices_get_neighbour_colours() {
+        let surface = strip(8);
+        let normals = welded_normals(&surface);
+        assert!(normals.iter().all(|n| (n.z - 1.0).abs() < 1e-6));
+        let camera = Camera::look_at(
+            Vec3::new(0.5, 0.5, 3.0),
+            Vec3::new(0.5, 0.5, 0.0),
+            Vec3::Y,
+            Projection::Orthographic { half_height: 1.5 },
+        )
+        .unwrap();
+        let (w, h) = (16u32, 16u32);
+        let raster = w3d_raster::rasterize(
+            &surface.positions.iter().map(|p| p.as_vec3().to_array()).collect::<Vec<_>>(),
+            &surface.triangles,
+            &camera,
+            w,
+            h,
+        )
+        .unwrap();
+        // The image shows x in [-1, 2]: only vertices with x ≤ 1 (plus tolerance) are inside.
+        let depth =
+            raster.triangle.iter().zip(&raster.depth).map(|(&t, &d)| if t != NO_TRIANGLE { d } else { -1.0 }).collect();
+        let colour = vec![[0.2, 0.4, 0.6]; (w * h) as usize];
+        let sampler = ViewSampler::new(camera, w, h, depth, colour, 3.0 / h as f32, false);
+        let fused = fuse(&surface, &normals, &[sampler], 4.0).unwrap();
+        let seen = fused.seen.iter().filter(|&&s| s).count();
+        assert!(seen >= 4 && seen < fused.seen.len(), "{seen}");
+        for c in &fused.colours {
+            assert!((*c - Vec3::new(0.2, 0.4, 0.6)).abs().max_element() < 1e-5, "{c}");
+        }
+    }
+}

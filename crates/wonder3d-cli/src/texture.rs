@@ -1,0 +1,99 @@
+//! `wonder3d texture MESH VIEWS_DIR --out OUT`: bake the colour views onto a mesh.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use indicatif::{ProgressBar, ProgressStyle};
+use w3d_core::{Result, ViewSet, load_mesh, save_mesh};
+use w3d_texture::{BakeStage, TextureOptions, bake_with_progress, fuse_vertex_colours};
+
+/// Arguments of `wonder3d texture`.
+#[derive(clap::Args)]
+pub struct TextureArgs {
+    /// Mesh in the canonical frame of the views (.obj, .ply, .glb, .gltf); its own uvs,
+    /// colours and texture are ignored.
+    mesh: PathBuf,
+    /// View-set folder (`cameras.json`, `colour_<view>.png`, masks, normals), as written by
+    /// `wonder3d render` or `wonder3d generate`.
+    views: PathBuf,
+    /// Output file: `.glb` (embedded PNG texture) or `.obj` (+ `.mtl` + `.png` beside it).
+    #[arg(long)]
+    out: PathBuf,
+    /// Texture width and height in texels.
+    #[arg(long, default_value_t = TextureOptions::default().size)]
+    size: u32,
+    /// Empty texels around each chart in the atlas.
+    #[arg(long, default_value_t = TextureOptions::default().padding)]
+    padding: u32,
+    /// Texel rings grown outwards from the charts after baking.
+    #[arg(long, default_value_t = TextureOptions::default().dilation)]
+    dilation: u32,
+    /// Exponent k of the view weight |cos(view, normal)|^k.
+    #[arg(long, default_value_t = TextureOptions::default().view_weight_exponent)]
+    exponent: f32,
+    /// Write the fused per-vertex colours instead of a texture (no uv atlas; the fallback
+    /// for viewers without texture support).
+    #[arg(long)]
+    vertex_colours: bool,
+    /// Normalise the mesh into the unit cube first (as `wonder3d render` does by default,
+    /// for views rendered from a raw mesh).
+    #[arg(long)]
+    normalize: bool,
+}
+
+/// Runs `wonder3d texture`, showing the bake stage on a spinner.
+pub fn run(args: &TextureArgs) -> Result<()> {
+    let mut mesh = load_mesh(&args.mesh)?.without_attributes();
+    if args.normalize {
+        mesh.normalize_unit_cube();
+    }
+    let (views, rig) = ViewSet::load(&args.views)?;
+    let options = TextureOptions {
+        size: args.size,
+        padding: args.padding,
+        dilation: args.dilation,
+        view_weight_exponent: args.exponent,
+        ..TextureOptions::default()
+    };
+    if args.vertex_colours {
+        let fused = fuse_vertex_colours(&mesh, &views, &rig, &options)?;
+        save_mesh(&args.out, &fused.mesh)?;
+        println!(
+            "wrote {}: {} views, vertex colours, seen vertices {:.1} %",
+            args.out.display(),
+            fused.views_used,
+            100.0 * fused.seen_vertex_fraction
+        );
+        return Ok(());
+    }
+    let spinner = ProgressBar::new_spinner();
+    spinner.set_style(ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}").expect("valid template"));
+    spinner.enable_steady_tick(Duration::from_millis(120));
+    let stages = 4;
+    let mut step = 0;
+    let result = bake_with_progress(&mesh, &views, &rig, &options, &mut |stage| {
+        step += 1;
+        let what = match stage {
+            BakeStage::FusingVertexColours => "fusing vertex colours",
+            BakeStage::BuildingAtlas => "building the uv atlas",
+            BakeStage::Baking => "baking the views into the texture",
+            BakeStage::Dilating => "dilating across chart borders",
+        };
+        spinner.set_message(format!("{step}/{stages} {what}"));
+    });
+    spinner.finish_and_clear();
+    let textured = result?;
+    let r = textured.report;
+    save_mesh(&args.out, &textured.mesh)?;
+    println!(
+        "wrote {}: {} views, {} charts, atlas utilisation {:.1} %, angle distortion {:.2}°, seen vertices {:.1} %, seen texels {:.1} %",
+        args.out.display(),
+        r.views_used,
+        r.atlas.charts,
+        100.0 * r.atlas.utilisation,
+        r.atlas.angle_distortion_deg,
+        100.0 * r.seen_vertex_fraction,
+        100.0 * r.seen_texel_fraction
+    );
+    Ok(())
+}

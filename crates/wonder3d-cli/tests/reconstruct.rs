@@ -1,0 +1,60 @@
+//! `wonder3d render` → `wonder3d reconstruct` → `wonder3d eval`: the command-line hand-over
+//! on small views, the report file, and clear errors for bad input.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+fn wonder3d(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_wonder3d")).args(args).output().unwrap()
+}
+
+fn spot() -> String {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../assets/spot.obj").to_str().unwrap().to_string()
+}
+
+#[test]
+fn reconstruct_reads_rendered_views_and_writes_a_mesh_and_report() {
+    let dir = tempfile::tempdir().unwrap();
+    let views = dir.path().join("views");
+    let mesh = dir.path().join("spot.glb");
+    let report = dir.path().join("report.json");
+    let run = wonder3d(&["render", &spot(), "--size", "96", "--out", views.to_str().unwrap()]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let run = wonder3d(&[
+        "reconstruct",
+        views.to_str().unwrap(),
+        "--out",
+        mesh.to_str().unwrap(),
+        "--preset",
+        "fast",
+        "--report",
+        report.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    assert_eq!(json["init"]["choice"], "poisson", "{json}");
+    assert_eq!(json["coarse"]["losses"].as_array().unwrap().len(), 80);
+    assert!(json["triangles"].as_u64().unwrap() > 500);
+    let run = wonder3d(&["eval", mesh.to_str().unwrap(), &spot(), "--json", "--samples", "20000"]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let metrics: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    let chamfer = metrics["chamfer"].as_f64().unwrap();
+    assert!(chamfer < 0.03, "fast preset at 96²: chamfer {chamfer}");
+}
+
+#[test]
+fn reconstruct_names_what_is_wrong() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.glb");
+    let missing = dir.path().join("no-such-views");
+    let run = wonder3d(&["reconstruct", missing.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("no-such-views"), "{err}");
+    let run = wonder3d(&["reconstruct", dir.path().to_str().unwrap(), "--out", out.to_str().unwrap(), "--preset", "best"]);
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("fast, default, quality"), "{err}");
+    assert!(!out.exists());
+}
