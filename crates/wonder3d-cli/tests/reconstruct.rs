@@ -34,7 +34,7 @@ fn reconstruct_reads_rendered_views_and_writes_a_mesh_and_report() {
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     let json: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
     assert_eq!(json["init"]["choice"], "poisson", "{json}");
-    assert_eq!(json["coarse"]["losses"].as_array().unwrap().len(), 80);
+    assert_eq!(json["coarse"]["losses"].as_array().unwrap().len(), w3d_recon::ReconOptions::preset(w3d_recon::Preset::Fast).coarse.steps);
     assert!(json["triangles"].as_u64().unwrap() > 500);
     let run = wonder3d(&["eval", mesh.to_str().unwrap(), &spot(), "--json", "--samples", "20000"]);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
@@ -57,4 +57,33 @@ fn reconstruct_names_what_is_wrong() {
     let err = String::from_utf8_lossy(&run.stderr);
     assert!(err.contains("fast, default, quality"), "{err}");
     assert!(!out.exists());
+}
+
+#[test]
+fn demo_writes_glb_contact_sheet_and_report() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    let run = wonder3d(&[
+        "demo",
+        "--out",
+        out.to_str().unwrap(),
+        "--preset",
+        "fast",
+        "--size",
+        "128",
+        "--texture-size",
+        "256",
+        "--quiet",
+    ]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    let chamfer = report["geometry"]["chamfer"].as_f64().unwrap();
+    let psnr = report["texture_psnr_input_views"].as_f64().unwrap();
+    assert!(chamfer < 0.015, "{report}");
+    assert!(psnr > 20.0, "{report}");
+    let textured = w3d_core::load_mesh(out.join("spot.glb")).unwrap();
+    assert!(textured.texture().is_some() && textured.uvs().is_some());
+    assert_eq!(textured.triangle_count() as u64, report["triangles"].as_u64().unwrap());
+    let sheet = w3d_core::Image::read_png(out.join("views.png")).unwrap();
+    assert_eq!((sheet.width(), sheet.height()), (6 * 128, 4 * 128));
 }
