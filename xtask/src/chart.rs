@@ -55,13 +55,15 @@ pub fn run() -> Result<(), String> {
             .caption("Reconstruction: time against accuracy (oracle views, 6-view ortho, 256²)", ("sans-serif", 18))
             .margin(12)
             .x_label_area_size(40)
-            .y_label_area_size(60)
+            .y_label_area_size(80)
             .build_cartesian_2d((1.0f64..300.0f64).log_scale(), 0.0f64..max_cd)
             .map_err(|e| e.to_string())?;
         chart
             .configure_mesh()
+            .light_line_style(RGBColor(240, 240, 240))
+            .bold_line_style(RGBColor(200, 200, 200))
             .x_desc("wall-clock seconds, init + coarse (log scale)")
-            .y_desc("Chamfer distance (unit cube)")
+            .y_desc("Chamfer")
             .draw()
             .map_err(|e| e.to_string())?;
         for (name, colour, points) in &series {

@@ -334,6 +334,7 @@ fn table(runs: &[&Run]) -> String {
     );
     let mut sums = [0.0f64; 7];
     let mut count = 0.0;
+    let (mut sums_wo, mut count_wo) = ([0.0f64; 7], 0.0);
     for r in runs {
         let v = &r.value;
         if v.get("error").is_some() {
@@ -353,6 +354,12 @@ fn table(runs: &[&Run]) -> String {
             *a += b;
         }
         count += 1.0;
+        if r.name != "hammer" {
+            for (a, b) in sums_wo.iter_mut().zip(row) {
+                *a += b;
+            }
+            count_wo += 1.0;
+        }
         s.push_str(&format!(
             "| {} | {:.4} | {:.3} | {:.3} | {:.3} | {:.3} | {} | {:.1} | {} | {} ({}) |\n",
             r.name,
@@ -374,6 +381,13 @@ fn table(runs: &[&Run]) -> String {
             "| **mean** | **{:.4}** | **{:.3}** | **{:.3}** | **{:.3}** | {:.3} | {:.0} | {:.1} | | |\n",
             m[0], m[1], m[2], m[3], m[4], m[5], m[6]
         ));
+        if count_wo < count && count_wo > 0.0 {
+            let m: Vec<f64> = sums_wo.iter().map(|x| x / count_wo).collect();
+            s.push_str(&format!(
+                "| mean without hammer (see below) | {:.4} | {:.3} | {:.3} | {:.3} | {:.3} | {:.0} | {:.1} | | |\n",
+                m[0], m[1], m[2], m[3], m[4], m[5], m[6]
+            ));
+        }
     }
     s
 }

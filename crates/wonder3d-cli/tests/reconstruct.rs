@@ -34,7 +34,10 @@ fn reconstruct_reads_rendered_views_and_writes_a_mesh_and_report() {
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     let json: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
     assert_eq!(json["init"]["choice"], "poisson", "{json}");
-    assert_eq!(json["coarse"]["losses"].as_array().unwrap().len(), w3d_recon::ReconOptions::preset(w3d_recon::Preset::Fast).coarse.steps);
+    assert_eq!(
+        json["coarse"]["losses"].as_array().unwrap().len(),
+        w3d_recon::ReconOptions::preset(w3d_recon::Preset::Fast).coarse.steps
+    );
     assert!(json["triangles"].as_u64().unwrap() > 500);
     let run = wonder3d(&["eval", mesh.to_str().unwrap(), &spot(), "--json", "--samples", "20000"]);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
@@ -52,7 +55,8 @@ fn reconstruct_names_what_is_wrong() {
     assert!(!run.status.success());
     let err = String::from_utf8_lossy(&run.stderr);
     assert!(err.contains("no-such-views"), "{err}");
-    let run = wonder3d(&["reconstruct", dir.path().to_str().unwrap(), "--out", out.to_str().unwrap(), "--preset", "best"]);
+    let run =
+        wonder3d(&["reconstruct", dir.path().to_str().unwrap(), "--out", out.to_str().unwrap(), "--preset", "best"]);
     assert!(!run.status.success());
     let err = String::from_utf8_lossy(&run.stderr);
     assert!(err.contains("fast, default, quality"), "{err}");
