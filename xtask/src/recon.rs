@@ -7,7 +7,9 @@
 //!
 //! Arguments (after `--`): `--meshes a,b` (file stems), `--cases ortho,persp,presets,
 //! concave,stability` (default all), `--size N` (default 256), `--docs-from-json` (rewrite
-//! `docs/accuracy.md` from the last `target/bench/recon.json` without reconstructing).
+//! `docs/accuracy.md` from the last `target/bench/recon.json` without reconstructing),
+//! `--texture` (novel-view texture fidelity of reconstructed spot and bob →
+//! `target/bench/recon_texture.json`, included in `docs/accuracy.md`).
 
 use std::path::Path;
 use std::time::Instant;
@@ -179,6 +181,76 @@ fn add_normal_noise(views: &mut ViewSet, sigma: f32, seed: u64) {
     }
 }
 
+/// Mean PSNR and SSIM over the 16 SyncDreamer views of `ours` against `truth`, both rendered
+/// with their masks and composited over white (the NVS protocol of `eval_nvs.py`).
+fn novel_view_fidelity(truth: &Mesh, ours: &Mesh, size: u32) -> Result<(f64, f64), String> {
+    use wonder3d::eval::{composite_over_white, psnr, ssim};
+    let rig = ViewRig::syncdreamer16();
+    let render = |mesh: &Mesh| -> Result<Vec<wonder3d::Image>, String> {
+        let views = render_oracle_views(mesh, &rig, size).map_err(|e| e.to_string())?;
+        views
+            .views
+            .iter()
+            .map(|v| {
+                let colour = v.colour.as_ref().ok_or("no colour view")?;
+                let rgba: Vec<f32> = colour
+                    .data()
+                    .chunks_exact(3)
+                    .zip(v.mask.data())
+                    .flat_map(|(c, &a)| [c[0], c[1], c[2], a])
+                    .collect();
+                let image = wonder3d::Image::new(size, size, 4, rgba).map_err(|e| e.to_string())?;
+                composite_over_white(&image).map_err(|e| e.to_string())
+            })
+            .collect()
+    };
+    let (a, b) = (render(truth)?, render(ours)?);
+    let (mut p, mut q) = (0.0, 0.0);
+    for (x, y) in a.iter().zip(&b) {
+        p += psnr(x, y).map_err(|e| e.to_string())?;
+        q += ssim(x, y).map_err(|e| e.to_string())?;
+    }
+    Ok((p / a.len() as f64, q / a.len() as f64))
+}
+
+/// Texture fidelity in novel views: spot and bob (textured assets) reconstructed from their
+/// oracle views, baked at 1024², compared in the 16 SyncDreamer views; the same bake on the
+/// ground-truth geometry for reference. Writes `target/bench/recon_texture.json`.
+fn texture_cases(size: u32) -> Result<(), String> {
+    use wonder3d::texture::{TextureOptions, bake};
+    let rig = ViewRig::wonder3d_ortho();
+    let mut rows = Vec::new();
+    for file in ["spot.obj", "bob_tri.obj"] {
+        let path = crate::workspace_root().join("assets").join(file);
+        let mut truth = load_mesh(&path).map_err(|e| e.to_string())?;
+        truth.normalize_unit_cube();
+        let views = render_oracle_views(&truth, &rig, size).map_err(|e| e.to_string())?;
+        let options = ReconOptions::preset(Preset::Default);
+        let (mesh, report) = reconstruct(&views, &rig, &options, &mut |_| {}).map_err(|e| e.to_string())?;
+        let texture = TextureOptions::default();
+        let ours = bake(&mesh, &views, &rig, &texture).map_err(|e| e.to_string())?;
+        let on_truth = bake(&truth.clone().without_attributes(), &views, &rig, &texture).map_err(|e| e.to_string())?;
+        let (psnr_recon, ssim_recon) = novel_view_fidelity(&truth, &ours.mesh, size)?;
+        let (psnr_truth, ssim_truth) = novel_view_fidelity(&truth, &on_truth.mesh, size)?;
+        let name = file.split('.').next().unwrap_or(file);
+        eprintln!("{name}: 16-view PSNR {psnr_recon:.2} dB (reconstructed) / {psnr_truth:.2} dB (true geometry)");
+        rows.push(json!({
+            "mesh": name,
+            "triangles": report.triangles,
+            "psnr_reconstructed": psnr_recon,
+            "ssim_reconstructed": ssim_recon,
+            "psnr_true_geometry": psnr_truth,
+            "ssim_true_geometry": ssim_truth,
+        }));
+    }
+    let out = crate::target_dir().join("bench").join("recon_texture.json");
+    std::fs::create_dir_all(crate::target_dir().join("bench")).map_err(|e| e.to_string())?;
+    std::fs::write(&out, serde_json::to_string_pretty(&rows).unwrap_or_default())
+        .map_err(|e| format!("{}: {e}", out.display()))?;
+    eprintln!("wrote {}", out.display());
+    Ok(())
+}
+
 pub fn run(args: &[String]) -> Result<(), String> {
     let mut meshes: Option<Vec<String>> = None;
     let mut cases = vec!["ortho", "persp", "presets", "concave", "stability"];
@@ -197,6 +269,7 @@ pub fn run(args: &[String]) -> Result<(), String> {
             }
             "--size" => size = value()?.parse().map_err(|e| format!("--size: {e}"))?,
             "--docs-from-json" => return docs_from_json(),
+            "--texture" => return texture_cases(size),
             other => return Err(format!("unknown argument {other:?} (see xtask/src/recon.rs)")),
         }
     }
@@ -441,6 +514,29 @@ fn accuracy_markdown(runs: &[Run], size: u32) -> String {
             v["nan"],
             v["watertight"],
         ));
+    }
+    let texture_json = crate::target_dir().join("bench").join("recon_texture.json");
+    if let Ok(text) = std::fs::read_to_string(&texture_json) {
+        if let Ok(Value::Array(rows)) = serde_json::from_str::<Value>(&text) {
+            s.push_str(
+                "\n## Texture in novel views (`cargo xtask bench recon -- --texture`)\n\n\
+                 Spot and bob (textured assets) reconstructed from their 6 oracle views (default preset), \
+                 baked at 1024² by `w3d-texture`, rendered in the 16 SyncDreamer views with their masks, \
+                 composited over white and compared with the textured original; the same bake on the \
+                 true geometry for reference.\n\n\
+                 | mesh | PSNR, reconstructed | SSIM, reconstructed | PSNR, true geometry | SSIM, true geometry |\n|---|---|---|---|---|\n",
+            );
+            for r in &rows {
+                s.push_str(&format!(
+                    "| {} | {:.2} dB | {:.4} | {:.2} dB | {:.4} |\n",
+                    r["mesh"].as_str().unwrap_or("?"),
+                    f(r, &["psnr_reconstructed"]),
+                    f(r, &["ssim_reconstructed"]),
+                    f(r, &["psnr_true_geometry"]),
+                    f(r, &["ssim_true_geometry"]),
+                ));
+            }
+        }
     }
     s.push_str(NOTES);
     s.push_str("\n## Stability (orthographic rig, default preset)\n\n");
