@@ -516,9 +516,10 @@ fn accuracy_markdown(runs: &[Run], size: u32) -> String {
         ));
     }
     let texture_json = crate::target_dir().join("bench").join("recon_texture.json");
-    if let Ok(text) = std::fs::read_to_string(&texture_json) {
-        if let Ok(Value::Array(rows)) = serde_json::from_str::<Value>(&text) {
-            s.push_str(
+    if let Ok(text) = std::fs::read_to_string(&texture_json)
+        && let Ok(Value::Array(rows)) = serde_json::from_str::<Value>(&text)
+    {
+        s.push_str(
                 "\n## Texture in novel views (`cargo xtask bench recon -- --texture`)\n\n\
                  Spot and bob (textured assets) reconstructed from their 6 oracle views (default preset), \
                  baked at 1024² by `w3d-texture`, rendered in the 16 SyncDreamer views with their masks, \
@@ -526,16 +527,15 @@ fn accuracy_markdown(runs: &[Run], size: u32) -> String {
                  true geometry for reference.\n\n\
                  | mesh | PSNR, reconstructed | SSIM, reconstructed | PSNR, true geometry | SSIM, true geometry |\n|---|---|---|---|---|\n",
             );
-            for r in &rows {
-                s.push_str(&format!(
-                    "| {} | {:.2} dB | {:.4} | {:.2} dB | {:.4} |\n",
-                    r["mesh"].as_str().unwrap_or("?"),
-                    f(r, &["psnr_reconstructed"]),
-                    f(r, &["ssim_reconstructed"]),
-                    f(r, &["psnr_true_geometry"]),
-                    f(r, &["ssim_true_geometry"]),
-                ));
-            }
+        for r in &rows {
+            s.push_str(&format!(
+                "| {} | {:.2} dB | {:.4} | {:.2} dB | {:.4} |\n",
+                r["mesh"].as_str().unwrap_or("?"),
+                f(r, &["psnr_reconstructed"]),
+                f(r, &["ssim_reconstructed"]),
+                f(r, &["psnr_true_geometry"]),
+                f(r, &["ssim_true_geometry"]),
+            ));
         }
     }
     s.push_str(NOTES);
