@@ -1,0 +1,118 @@
+//! Self-intersection count of a triangle mesh: pairs of triangles that share no vertex and
+//! whose interiors cross (an edge of one passes through the other). Coplanar overlaps are
+//! not counted. Candidate pairs come from a uniform grid over the bounding box.
+
+use std::collections::HashMap;
+
+use glam::DVec3;
+use w3d_core::Mesh;
+
+/// Number of pairs of triangles that share no vertex and cross each other (an edge of one
+/// passes through the interior of the other, in f64). 0 for a mesh without
+/// self-intersections; the check behind "no self-intersections" in the reconstruction
+/// reports.
+pub fn self_intersecting_pairs(mesh: &Mesh) -> usize {
+    let p: Vec<DVec3> = mesh.positions().iter().map(|v| DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64)).collect();
+    let tris = mesh.triangles();
+    if tris.len() < 2 {
+        return 0;
+    }
+    let (lo, hi) = p
+        .iter()
+        .fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(a, b), v| (a.min(*v), b.max(*v)));
+    // About one triangle per cell on a surface: cells ≈ (2·F)^(1/2) per axis.
+    let cells = ((tris.len() as f64 * 2.0).sqrt().ceil() as i64).clamp(1, 256);
+    let size = (hi - lo).max_element().max(1e-12) / cells as f64;
+    let cell = |v: DVec3| -> [i64; 3] {
+        let c = ((v - lo) / size).floor();
+        [c.x as i64, c.y as i64, c.z as i64].map(|k| k.clamp(0, cells - 1))
+    };
+    let mut grid: HashMap<[i64; 3], Vec<u32>> = HashMap::new();
+    for (t, tri) in tris.iter().enumerate() {
+        let [a, b, c] = tri.map(|i| p[i as usize]);
+        let (l, h) = (cell(a.min(b).min(c)), cell(a.max(b).max(c)));
+        for x in l[0]..=h[0] {
+            for y in l[1]..=h[1] {
+                for z in l[2]..=h[2] {
+                    grid.entry([x, y, z]).or_default().push(t as u32);
+                }
+            }
+        }
+    }
+    let mut pairs: Vec<(u32, u32)> = Vec::new();
+    for members in grid.values() {
+        for (i, &s) in members.iter().enumerate() {
+            for &t in &members[i + 1..] {
+                let (a, b) = (tris[s as usize], tris[t as usize]);
+                if a.iter().any(|v| b.contains(v)) {
+                    continue;
+                }
+                let ta = a.map(|i| p[i as usize]);
+                let tb = b.map(|i| p[i as usize]);
+                if triangles_cross(ta, tb) {
+                    pairs.push((s.min(t), s.max(t)));
+                }
+            }
+        }
+    }
+    pairs.sort_unstable();
+    pairs.dedup();
+    pairs.len()
+}
+
+/// Whether an edge of either triangle passes through the other.
+fn triangles_cross(a: [DVec3; 3], b: [DVec3; 3]) -> bool {
+    (0..3).any(|k| segment_hits_triangle(a[k], a[(k + 1) % 3], b))
+        || (0..3).any(|k| segment_hits_triangle(b[k], b[(k + 1) % 3], a))
+}
+
+/// Möller–Trumbore on the segment `p0 → p1` (parameter strictly inside (0, 1)).
+fn segment_hits_triangle(p0: DVec3, p1: DVec3, t: [DVec3; 3]) -> bool {
+    let d = p1 - p0;
+    let (e1, e2) = (t[1] - t[0], t[2] - t[0]);
+    let h = d.cross(e2);
+    let det = e1.dot(h);
+    if det.abs() < 1e-18 {
+        return false; // parallel or coplanar
+    }
+    let inv = 1.0 / det;
+    let s = p0 - t[0];
+    let u = s.dot(h) * inv;
+    if !(0.0..=1.0).contains(&u) {
+        return false;
+    }
+    let q = s.cross(e1);
+    let v = d.dot(q) * inv;
+    if v < 0.0 || u + v > 1.0 {
+        return false;
+    }
+    let along = e2.dot(q) * inv;
+    along > 1e-9 && along < 1.0 - 1e-9
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn tetra(offset: [f32; 3]) -> (Vec<[f32; 3]>, Vec<[u32; 3]>) {
+        let p = [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+            .map(|v: [f32; 3]| [v[0] + offset[0], v[1] + offset[1], v[2] + offset[2]]);
+        (p.to_vec(), vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    }
+
+    fn two(offset: [f32; 3]) -> Mesh {
+        let (mut p, mut t) = tetra([0.0; 3]);
+        let (q, s) = tetra(offset);
+        p.extend(q);
+        t.extend(s.iter().map(|f| f.map(|i| i + 4)));
+        Mesh::new(p, t).unwrap()
+    }
+
+    #[test]
+    fn overlapping_shells_intersect_and_separate_ones_do_not() {
+        assert_eq!(self_intersecting_pairs(&two([2.0, 0.0, 0.0])), 0);
+        assert!(self_intersecting_pairs(&two([0.2, 0.2, 0.2])) > 0);
+        let (p, t) = tetra([0.0; 3]);
+        assert_eq!(self_intersecting_pairs(&Mesh::new(p, t).unwrap()), 0);
+    }
+}
