@@ -194,13 +194,7 @@ fn novel_view_fidelity(truth: &Mesh, ours: &Mesh, size: u32) -> Result<(f64, f64
             .iter()
             .map(|v| {
                 let colour = v.colour.as_ref().ok_or("no colour view")?;
-                let rgba: Vec<f32> = colour
-                    .data()
-                    .chunks_exact(3)
-                    .zip(v.mask.data())
-                    .flat_map(|(c, &a)| [c[0], c[1], c[2], a])
-                    .collect();
-                let image = wonder3d::Image::new(size, size, 4, rgba).map_err(|e| e.to_string())?;
+                let image = colour.with_alpha(&v.mask).map_err(|e| e.to_string())?;
                 composite_over_white(&image).map_err(|e| e.to_string())
             })
             .collect()

@@ -106,6 +106,15 @@ impl Image {
         Ok(())
     }
 
+    /// This 3-channel image with `alpha` (1 channel, same size) appended as a fourth channel:
+    /// e.g. a colour view and its mask as RGBA, ready for compositing.
+    pub fn with_alpha(&self, alpha: &Image) -> Result<Image> {
+        self.expect_shape("colour", self.width, self.height, 3)?;
+        alpha.expect_shape("alpha", self.width, self.height, 1)?;
+        let data = self.data.chunks_exact(3).zip(&alpha.data).flat_map(|(c, &a)| [c[0], c[1], c[2], a]).collect();
+        Image::new(self.width, self.height, 4, data)
+    }
+
     /// Reads a PNG (8 or 16 bit, grey / grey+alpha / RGB / RGBA) as values in `[0, 1]`
     /// exactly as stored (no colour-space conversion). The channel count is the file's.
     pub fn read_png(path: impl AsRef<Path>) -> Result<Self> {

@@ -5,11 +5,11 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use indicatif::{ProgressBar, ProgressStyle};
+use crate::progress::{recon_progress, stage_bar};
 use serde_json::json;
 use w3d_core::{Error, Image, Mesh, Result, ViewRig, io::write_atomic, load_mesh, save_mesh};
 use w3d_eval::{EvalOptions, composite_over_white, evaluate, psnr, ssim};
-use w3d_recon::{Preset, Progress, ReconOptions, Stage, reconstruct};
+use w3d_recon::{Preset, ReconOptions, reconstruct};
 use w3d_texture::{TextureOptions, bake};
 
 /// The bundled demo object: Keenan Crane's spot (CC0), mesh, material and texture.
@@ -37,17 +37,6 @@ pub struct DemoArgs {
     quiet: bool,
 }
 
-fn bar(quiet: bool, stage: &str, len: u64) -> Result<ProgressBar> {
-    let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(len) };
-    bar.set_style(
-        ProgressStyle::with_template("{prefix:>12} [{bar:40}] {pos}/{len} {msg} ({elapsed})")
-            .map_err(|e| Error::invalid("progress template", e.to_string()))?
-            .progress_chars("=> "),
-    );
-    bar.set_prefix(stage.to_string());
-    Ok(bar)
-}
-
 /// The bundled spot, normalised to the unit cube (written to a temporary folder so the
 /// regular OBJ + MTL + texture loader reads it).
 fn bundled_spot() -> Result<Mesh> {
@@ -61,16 +50,10 @@ fn bundled_spot() -> Result<Mesh> {
     Ok(spot)
 }
 
-/// An RGBA image from a 3-channel colour image and a 1-channel mask.
-fn with_alpha(colour: &Image, mask: &Image) -> Result<Image> {
-    let data = colour.data().chunks_exact(3).zip(mask.data()).flat_map(|(c, &a)| [c[0], c[1], c[2], a]).collect();
-    Image::new(colour.width(), colour.height(), 4, data)
-}
-
 /// Normals as RGB = (n + 1) / 2 with their mask as alpha.
 fn normal_rgba(normal: &Image, mask: &Image) -> Result<Image> {
     let rgb: Vec<f32> = normal.data().iter().map(|v| 0.5 * (v + 1.0)).collect();
-    with_alpha(&Image::new(normal.width(), normal.height(), 3, rgb)?, mask)
+    Image::new(normal.width(), normal.height(), 3, rgb)?.with_alpha(mask)
 }
 
 /// A grid of equally sized RGBA images composited over white (rows × columns).
@@ -101,36 +84,25 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     std::fs::create_dir_all(&args.out).map_err(|e| Error::io(&args.out, e))?;
     let rig = ViewRig::wonder3d_ortho();
 
-    let b = bar(args.quiet, "views", 1)?;
+    let b = stage_bar(args.quiet, "views")?;
     let t = Instant::now();
     let spot = bundled_spot()?;
     let views = w3d_raster::render_oracle_views(&spot, &rig, args.size)?;
     let views_seconds = t.elapsed().as_secs_f64();
     b.finish_with_message(format!("6 oracle views of spot at {0}×{0}", args.size));
 
-    let b = bar(args.quiet, "reconstruct", 1)?;
-    let mut progress = |p: Progress| {
-        b.set_prefix(match p.stage {
-            Stage::Init => "init",
-            Stage::Coarse => "coarse",
-        });
-        b.set_length(p.total as u64);
-        b.set_position(p.done as u64);
-        if let Some(loss) = p.loss {
-            b.set_message(format!("loss {loss:.5}"));
-        }
-    };
-    let (mesh, recon) = reconstruct(&views, &rig, &ReconOptions::preset(preset), &mut progress)?;
+    let b = stage_bar(args.quiet, "reconstruct")?;
+    let (mesh, recon) = reconstruct(&views, &rig, &ReconOptions::preset(preset), &mut recon_progress(&b))?;
     b.finish_with_message(format!("{} triangles", mesh.triangle_count()));
 
-    let b = bar(args.quiet, "texture", 1)?;
+    let b = stage_bar(args.quiet, "texture")?;
     b.enable_steady_tick(std::time::Duration::from_millis(200));
     let t = Instant::now();
     let textured = bake(&mesh, &views, &rig, &TextureOptions { size: args.texture_size, ..TextureOptions::default() })?;
     let texture_seconds = t.elapsed().as_secs_f64();
     b.finish_with_message(format!("{0}×{0} atlas, {1} charts", args.texture_size, textured.report.atlas.charts));
 
-    let b = bar(args.quiet, "evaluate", 1)?;
+    let b = stage_bar(args.quiet, "evaluate")?;
     b.enable_steady_tick(std::time::Duration::from_millis(200));
     let t = Instant::now();
     let metrics = evaluate(&mesh, &spot, &EvalOptions::default())?;
@@ -141,13 +113,13 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         let (Some(ci), Some(cr)) = (&input.colour, &result.colour) else {
             return Err(Error::invalid("views", "colour images in the oracle views"));
         };
-        let a = composite_over_white(&with_alpha(ci, &input.mask)?)?;
-        let r = composite_over_white(&with_alpha(cr, &result.mask)?)?;
+        let a = composite_over_white(&ci.with_alpha(&input.mask)?)?;
+        let r = composite_over_white(&cr.with_alpha(&result.mask)?)?;
         psnrs.push(psnr(&a, &r)?);
         ssims.push(ssim(&a, &r)?);
-        sheet[0].push(with_alpha(ci, &input.mask)?);
+        sheet[0].push(ci.with_alpha(&input.mask)?);
         sheet[1].push(normal_rgba(&input.normal, &input.mask)?);
-        sheet[2].push(with_alpha(cr, &result.mask)?);
+        sheet[2].push(cr.with_alpha(&result.mask)?);
         sheet[3].push(normal_rgba(&result.normal, &result.mask)?);
     }
     let eval_seconds = t.elapsed().as_secs_f64();

@@ -13,6 +13,7 @@
 mod demo;
 mod eval;
 mod info;
+mod progress;
 mod reconstruct;
 mod render;
 mod texture;

@@ -2,9 +2,10 @@
 
 use std::path::PathBuf;
 
-use indicatif::{ProgressBar, ProgressStyle};
 use w3d_core::{Error, Result, ViewSet, io::write_atomic, save_mesh};
-use w3d_recon::{Preset, Progress, ReconOptions, Stage, reconstruct};
+use w3d_recon::{Preset, ReconOptions, reconstruct};
+
+use crate::progress::{recon_progress, stage_bar};
 
 /// Arguments of `wonder3d reconstruct`.
 #[derive(clap::Args)]
@@ -30,24 +31,8 @@ pub struct ReconstructArgs {
 pub fn run(args: &ReconstructArgs) -> Result<()> {
     let preset: Preset = args.preset.parse()?;
     let (views, rig) = ViewSet::load(&args.views)?;
-    let bar = if args.quiet { ProgressBar::hidden() } else { ProgressBar::new(1) };
-    bar.set_style(
-        ProgressStyle::with_template("{prefix:>8} [{bar:40}] {pos}/{len} {msg} ({elapsed})")
-            .map_err(|e| Error::invalid("progress template", e.to_string()))?
-            .progress_chars("=> "),
-    );
-    let mut progress = |p: Progress| {
-        match p.stage {
-            Stage::Init => bar.set_prefix("init"),
-            Stage::Coarse => bar.set_prefix("coarse"),
-        }
-        bar.set_length(p.total as u64);
-        bar.set_position(p.done as u64);
-        if let Some(loss) = p.loss {
-            bar.set_message(format!("loss {loss:.5}"));
-        }
-    };
-    let (mesh, report) = reconstruct(&views, &rig, &ReconOptions::preset(preset), &mut progress)?;
+    let bar = stage_bar(args.quiet, "reconstruct")?;
+    let (mesh, report) = reconstruct(&views, &rig, &ReconOptions::preset(preset), &mut recon_progress(&bar))?;
     bar.finish_and_clear();
     save_mesh(&args.out, &mesh)?;
     if let Some(path) = &args.report {
