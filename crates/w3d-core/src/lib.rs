@@ -29,6 +29,7 @@
 pub mod camera;
 mod error;
 pub mod image;
+mod intersect;
 pub mod io;
 pub mod mesh;
 pub mod rig;

@@ -35,7 +35,6 @@
 mod distance;
 mod icp;
 mod image_metrics;
-mod intersect;
 mod sampling;
 mod visible;
 mod volume;
@@ -44,7 +43,6 @@ mod winding;
 pub use distance::{FScore, SurfaceComparison};
 pub use icp::{IcpOptions, Similarity, align_icp_scale};
 pub use image_metrics::{composite_over_white, psnr, ssim};
-pub use intersect::self_intersecting_pairs;
 pub use sampling::{SurfaceSamples, sample_surface};
 pub use visible::{VisibleChamfer, VisibleOptions, visible_points, visible_surface_chamfer, voxel_down_sample};
 pub use volume::{Grid, occupancy, occupancy_iou, volume_iou};

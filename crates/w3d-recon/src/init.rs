@@ -37,6 +37,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 use serde::Serialize;
 use w3d_core::{Camera, Error, Image, Mesh, Projection, Result, ViewRig, ViewSet};
+use w3d_raster::render_mask;
 use w3d_remesh::{MeshOptimizer, RemeshOptions};
 
 use crate::coarse::silhouette_sphere;
@@ -65,6 +66,10 @@ pub struct InitOptions {
     pub smoothing_iterations: usize,
     /// Skip the Poisson initialisation and always start from the silhouette sphere.
     pub force_sphere: bool,
+    /// When the Poisson start's silhouette IoU is below this in some view,
+    /// [`crate::reconstruct`] also optimises from the [`visual_hull_mesh`] and keeps the
+    /// result with the lower final loss (see [`InitReport::silhouette_iou`]).
+    pub hull_alternative_iou: f32,
 }
 
 impl Default for InitOptions {
@@ -77,6 +82,7 @@ impl Default for InitOptions {
             concave_margin: 0.005,
             smoothing_iterations: 10,
             force_sphere: false,
+            hull_alternative_iou: 0.5,
         }
     }
 }
@@ -89,6 +95,10 @@ pub enum InitChoice {
     Poisson,
     /// An icosphere sized to the silhouettes.
     Sphere,
+    /// The visual hull of all views' masks ([`visual_hull_mesh`]), kept by
+    /// [`crate::reconstruct`] when the Poisson start missed a silhouette and the hull
+    /// start reached the lower loss.
+    VisualHull,
 }
 
 /// What [`initial_mesh`] did and why.
@@ -102,6 +112,9 @@ pub struct InitReport {
     pub front_concavity: Option<f32>,
     /// Centre-minus-silhouette mean depth of the back view (world units; > 0: concave).
     pub back_concavity: Option<f32>,
+    /// The smallest silhouette IoU of the Poisson start over the views (`None` for a
+    /// sphere start).
+    pub silhouette_iou: Option<f32>,
     /// Triangles of the start mesh.
     pub triangles: usize,
     /// Wall-clock seconds.
@@ -128,6 +141,7 @@ pub fn initial_mesh(views: &ViewSet, rig: &ViewRig, options: &InitOptions) -> Re
             reason,
             front_concavity: front,
             back_concavity: back,
+            silhouette_iou: None,
             triangles: mesh.triangle_count(),
             seconds: start.elapsed().as_secs_f64(),
         };
@@ -184,15 +198,58 @@ pub fn initial_mesh(views: &ViewSet, rig: &ViewRig, options: &InitOptions) -> Re
         return sphere(format!("Poisson + hull gave an empty surface ({numbers}): sphere start"), Some(fc), Some(bc));
     };
     let mesh = taubin_smooth(&simplify(&mesh, options.edge_length)?, options.smoothing_iterations)?;
+    let (worst_iou, worst_view) = silhouette_agreement(&mesh, views, rig)?;
     let report = InitReport {
         choice: InitChoice::Poisson,
-        reason: format!("convex front and back ({numbers}): Poisson start"),
+        reason: format!(
+            "convex front and back ({numbers}); silhouette IoU of the start ≥ {worst_iou:.2} ({worst_view}): Poisson start"
+        ),
         front_concavity: Some(fc),
         back_concavity: Some(bc),
+        silhouette_iou: Some(worst_iou),
         triangles: mesh.triangle_count(),
         seconds: start.elapsed().as_secs_f64(),
     };
     Ok((mesh, report))
+}
+
+/// The visual hull of all the rig's masks as a closed start mesh (marching tetrahedra on
+/// the [`InitOptions::grid`], simplified to [`InitOptions::edge_length`] and smoothed).
+/// It matches every silhouette by construction but not the concavities between them; it
+/// is the alternative start where front and back do not show how far the object extends
+/// along their axis (a handle pointing at the camera hides behind its head, with a depth
+/// step that integration cannot see).
+pub fn visual_hull_mesh(views: &ViewSet, rig: &ViewRig, options: &InitOptions) -> Result<Mesh> {
+    views.validate(rig)?;
+    let grid = Grid::new(options.grid, options.extent);
+    let field: Vec<f32> = visual_hull(&grid, views, rig).iter().map(|&m| 0.5 - m).collect();
+    let Some(mesh) = marching_tetrahedra(&grid, &field)? else {
+        return Err(Error::invalid("views masks", "silhouettes whose visual hull is not empty"));
+    };
+    taubin_smooth(&simplify(&mesh, options.edge_length)?, options.smoothing_iterations)
+}
+
+/// The smallest silhouette IoU of `mesh` over the rig's views (rendered masks against the
+/// views' masks, both thresholded at 0.5) and the name of that view.
+fn silhouette_agreement(mesh: &Mesh, views: &ViewSet, rig: &ViewRig) -> Result<(f32, String)> {
+    let (w, h) = (views.width(), views.height());
+    if w != h {
+        return Err(Error::invalid("views", format!("square images for the silhouette check, got {w}×{h}")));
+    }
+    let rendered = render_mask(mesh, rig, w)?;
+    let mut worst = (f32::INFINITY, String::new());
+    for ((ours, view), rv) in rendered.iter().zip(&views.views).zip(&rig.views) {
+        let (mut both, mut either) = (0usize, 0usize);
+        for (&a, &b) in ours.data().iter().zip(view.mask.data()) {
+            both += usize::from(a >= 0.5 && b >= 0.5);
+            either += usize::from(a >= 0.5 || b >= 0.5);
+        }
+        let iou = if either == 0 { 1.0 } else { both as f32 / either as f32 };
+        if iou < worst.0 {
+            worst = (iou, rv.name.clone());
+        }
+    }
+    Ok(worst)
 }
 
 /// An orthographic camera with the pose of `camera` whose image spans what `camera` sees

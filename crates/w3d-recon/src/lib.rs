@@ -9,7 +9,10 @@
 //! 2. [`reconstruct_coarse`]: differentiable rendering through `w3d-raster` with the
 //!    geometry-aware normal loss and the mask loss, gradients through the rasteriser's
 //!    backward passes and [`vertex_normals_backward`], continuous remeshing (`w3d-remesh`)
-//!    after every step, and density bounded below by the views' pixel footprint.
+//!    after every step, and density bounded below by the views' pixel footprint — run a
+//!    second time from the [`visual_hull_mesh`] when the Poisson start misses a silhouette
+//!    (a handle pointing at the camera), keeping the lower final loss;
+//! 3. [`untangle`]: local smoothing until no triangles cross.
 //!
 //! Frames and units follow `w3d-core`: the canonical y-up world frame of the rig, lengths in
 //! unit-cube units. Accuracy and speed per preset are in `docs/accuracy.md`.
@@ -38,10 +41,13 @@ mod init;
 mod integrate;
 mod normals;
 mod pipeline;
+mod untangle;
 
 pub use coarse::{CoarseOptions, CoarseReport, reconstruct_coarse, silhouette_sphere};
-pub use init::{InitChoice, InitOptions, InitReport, initial_mesh};
+pub use init::{InitChoice, InitOptions, InitReport, initial_mesh, visual_hull_mesh};
 pub use pipeline::{Preset, Progress, ReconOptions, ReconReport, Stage, StageTiming, reconstruct};
+
+pub use untangle::{UntangleReport, untangle};
 
 pub use integrate::{IntegrateOptions, integrate_normals, integrate_normals_anchored};
 pub use normals::{vertex_normals, vertex_normals_backward};

@@ -9,7 +9,8 @@ use serde::Serialize;
 use w3d_core::{Error, Mesh, Result, ViewRig, ViewSet};
 
 use crate::coarse::{CoarseOptions, CoarseReport, reconstruct_coarse};
-use crate::init::{InitOptions, InitReport, initial_mesh};
+use crate::init::{InitChoice, InitOptions, InitReport, initial_mesh, visual_hull_mesh};
+use crate::untangle::{UntangleReport, untangle};
 
 /// Named speed/accuracy trade-offs of [`ReconOptions`] (numbers in `docs/accuracy.md`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -61,20 +62,24 @@ pub struct ReconOptions {
     pub init: InitOptions,
     /// The coarse optimisation.
     pub coarse: CoarseOptions,
+    /// Most smoothing rounds [`untangle`] may run on the result (0 skips it).
+    pub untangle_rounds: usize,
 }
 
 impl ReconOptions {
     /// The options of a named preset.
     pub fn preset(preset: Preset) -> Self {
-        let base = ReconOptions { init: InitOptions::default(), coarse: CoarseOptions::default() };
+        let base = ReconOptions { init: InitOptions::default(), coarse: CoarseOptions::default(), untangle_rounds: 40 };
         match preset {
             Preset::Default => ReconOptions {
                 init: InitOptions { edge_length: 0.05, ..base.init },
                 coarse: CoarseOptions { steps: 120, lr_decay: 0.99, edge_len_lims: (0.02, 0.1), ..base.coarse },
+                ..base
             },
             Preset::Fast => ReconOptions {
                 init: InitOptions { edge_length: 0.06, ..base.init },
                 coarse: CoarseOptions { steps: 60, lr_decay: 0.985, edge_len_lims: (0.03, 0.1), ..base.coarse },
+                ..base
             },
             Preset::Quality => base,
         }
@@ -95,6 +100,8 @@ pub enum Stage {
     Init,
     /// The coarse optimisation with continuous remeshing.
     Coarse,
+    /// Smoothing away crossing triangles ([`untangle`]).
+    Untangle,
 }
 
 /// A progress event: `done` of `total` units of `stage` (the init stage reports 0/1 and
@@ -127,6 +134,8 @@ pub struct ReconReport {
     pub init: InitReport,
     /// Per-step losses and triangle counts of the coarse stage.
     pub coarse: CoarseReport,
+    /// Self-intersections of the coarse result and what [`untangle`] left.
+    pub untangle: UntangleReport,
     /// Per-stage wall-clock seconds.
     pub stages: Vec<StageTiming>,
     /// Triangles of the returned mesh.
@@ -137,7 +146,10 @@ pub struct ReconReport {
 
 /// Reconstructs a closed mesh, in the rig's world frame, from the normal maps and masks of
 /// `views` (one per view of `rig`, same order): [`initial_mesh`] then
-/// [`reconstruct_coarse`]. `progress` receives [`Progress`] events (pass `&mut |_| {}` to
+/// [`reconstruct_coarse`], then [`untangle`]. When the Poisson start misses a silhouette (IoU below
+/// [`InitOptions::hull_alternative_iou`]), the coarse stage also runs from
+/// [`visual_hull_mesh`] and the result with the lower final loss is kept (the report says
+/// which, with both losses). `progress` receives [`Progress`] events (pass `&mut |_| {}` to
 /// ignore them).
 pub fn reconstruct(
     views: &ViewSet,
@@ -147,18 +159,62 @@ pub fn reconstruct(
 ) -> Result<(Mesh, ReconReport)> {
     let start = Instant::now();
     progress(Progress { stage: Stage::Init, done: 0, total: 1, loss: None });
-    let (init, init_report) = initial_mesh(views, rig, &options.init)?;
+    let (init, mut init_report) = initial_mesh(views, rig, &options.init)?;
+    // A Poisson start that misses a silhouette badly may sit in the wrong basin: also
+    // optimise from the visual hull and keep the lower final loss.
+    let alternative = match init_report.silhouette_iou {
+        Some(iou) if iou < options.init.hull_alternative_iou => {
+            let t = Instant::now();
+            let hull = visual_hull_mesh(views, rig, &options.init)?;
+            init_report.seconds += t.elapsed().as_secs_f64();
+            Some(hull)
+        }
+        _ => None,
+    };
     progress(Progress { stage: Stage::Init, done: 1, total: 1, loss: None });
-    let (mesh, coarse_report) = reconstruct_coarse(views, rig, &init, &options.coarse, &mut |done, total, loss| {
-        progress(Progress { stage: Stage::Coarse, done, total, loss: Some(loss) })
-    })?;
+    let runs = 1 + usize::from(alternative.is_some());
+    let total = options.coarse.steps * runs;
+    let (mut mesh, mut coarse_report) =
+        reconstruct_coarse(views, rig, &init, &options.coarse, &mut |done, _, loss| {
+            progress(Progress { stage: Stage::Coarse, done, total, loss: Some(loss) })
+        })?;
+    if let Some(hull) = alternative {
+        let offset = options.coarse.steps;
+        let (hull_mesh, hull_report) = reconstruct_coarse(views, rig, &hull, &options.coarse, &mut |done, _, loss| {
+            progress(Progress { stage: Stage::Coarse, done: offset + done, total, loss: Some(loss) })
+        })?;
+        let final_loss = |r: &CoarseReport| r.losses.last().copied().unwrap_or(f32::INFINITY);
+        let (poisson_loss, hull_loss) = (final_loss(&coarse_report), final_loss(&hull_report));
+        let seconds = coarse_report.seconds + hull_report.seconds;
+        let kept = if hull_loss < poisson_loss {
+            mesh = hull_mesh;
+            coarse_report = hull_report;
+            init_report.choice = InitChoice::VisualHull;
+            init_report.triangles = hull.triangle_count();
+            "visual hull"
+        } else {
+            "Poisson"
+        };
+        coarse_report.seconds = seconds;
+        init_report.reason = format!(
+            "{}; silhouette IoU below {}: also optimised from the visual hull (final loss {hull_loss:.5} vs \
+             Poisson {poisson_loss:.5}): kept the {kept} result",
+            init_report.reason, options.init.hull_alternative_iou
+        );
+    }
+    let t = Instant::now();
+    progress(Progress { stage: Stage::Untangle, done: 0, total: 1, loss: None });
+    let (mesh, untangle_report) = untangle(&mesh, options.untangle_rounds)?;
+    progress(Progress { stage: Stage::Untangle, done: 1, total: 1, loss: None });
     let stages = vec![
         StageTiming { stage: Stage::Init, seconds: init_report.seconds },
         StageTiming { stage: Stage::Coarse, seconds: coarse_report.seconds },
+        StageTiming { stage: Stage::Untangle, seconds: t.elapsed().as_secs_f64() },
     ];
     let report = ReconReport {
         init: init_report,
         coarse: coarse_report,
+        untangle: untangle_report,
         stages,
         triangles: mesh.triangle_count(),
         seconds: start.elapsed().as_secs_f64(),

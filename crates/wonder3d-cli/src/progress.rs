@@ -23,6 +23,7 @@ pub fn recon_progress(bar: &ProgressBar) -> impl FnMut(Progress) + '_ {
         bar.set_prefix(match p.stage {
             Stage::Init => "init",
             Stage::Coarse => "coarse",
+            Stage::Untangle => "untangle",
         });
         bar.set_length(p.total as u64);
         bar.set_position(p.done as u64);

@@ -1,21 +1,27 @@
-//! Self-intersection count of a triangle mesh: pairs of triangles that share no vertex and
+//! Self-intersections of a triangle mesh: pairs of triangles that share no vertex and
 //! whose interiors cross (an edge of one passes through the other). Coplanar overlaps are
 //! not counted. Candidate pairs come from a uniform grid over the bounding box.
 
 use std::collections::HashMap;
 
+use crate::Mesh;
 use glam::DVec3;
-use w3d_core::Mesh;
 
-/// Number of pairs of triangles that share no vertex and cross each other (an edge of one
-/// passes through the interior of the other, in f64). 0 for a mesh without
-/// self-intersections; the check behind "no self-intersections" in the reconstruction
-/// reports.
-pub fn self_intersecting_pairs(mesh: &Mesh) -> usize {
+impl Mesh {
+    /// The pairs of triangles (indices, smaller first, sorted) that share no vertex and
+    /// cross each other: an edge of one passes through the interior of the other, tested
+    /// in f64. Empty for a mesh without self-intersections; the check behind "no
+    /// self-intersections" in the reconstruction reports.
+    pub fn self_intersections(&self) -> Vec<[u32; 2]> {
+        self_intersections(self)
+    }
+}
+
+fn self_intersections(mesh: &Mesh) -> Vec<[u32; 2]> {
     let p: Vec<DVec3> = mesh.positions().iter().map(|v| DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64)).collect();
     let tris = mesh.triangles();
     if tris.len() < 2 {
-        return 0;
+        return Vec::new();
     }
     let (lo, hi) = p
         .iter()
@@ -39,7 +45,7 @@ pub fn self_intersecting_pairs(mesh: &Mesh) -> usize {
             }
         }
     }
-    let mut pairs: Vec<(u32, u32)> = Vec::new();
+    let mut pairs: Vec<[u32; 2]> = Vec::new();
     for members in grid.values() {
         for (i, &s) in members.iter().enumerate() {
             for &t in &members[i + 1..] {
@@ -50,14 +56,14 @@ pub fn self_intersecting_pairs(mesh: &Mesh) -> usize {
                 let ta = a.map(|i| p[i as usize]);
                 let tb = b.map(|i| p[i as usize]);
                 if triangles_cross(ta, tb) {
-                    pairs.push((s.min(t), s.max(t)));
+                    pairs.push([s.min(t), s.max(t)]);
                 }
             }
         }
     }
     pairs.sort_unstable();
     pairs.dedup();
-    pairs.len()
+    pairs
 }
 
 /// Whether an edge of either triangle passes through the other.
@@ -110,9 +116,11 @@ mod tests {
 
     #[test]
     fn overlapping_shells_intersect_and_separate_ones_do_not() {
-        assert_eq!(self_intersecting_pairs(&two([2.0, 0.0, 0.0])), 0);
-        assert!(self_intersecting_pairs(&two([0.2, 0.2, 0.2])) > 0);
+        assert!(two([2.0, 0.0, 0.0]).self_intersections().is_empty());
+        let crossing = two([0.2, 0.2, 0.2]).self_intersections();
+        assert!(!crossing.is_empty());
+        assert!(crossing.iter().all(|&[a, b]| a < 4 && b >= 4), "{crossing:?}");
         let (p, t) = tetra([0.0; 3]);
-        assert_eq!(self_intersecting_pairs(&Mesh::new(p, t).unwrap()), 0);
+        assert!(Mesh::new(p, t).unwrap().self_intersections().is_empty());
     }
 }
