@@ -2,6 +2,7 @@
 //! Wonder3D base config, random weights) on flex and ndarray, and the UNet's convolution
 //! layers with the backend `conv2d` (direct) against im2col + GEMM. The xtask then times
 //! diffusers on torch CPU with the same config and input (xtask/python/bench_diffusion_torch.py).
+#![allow(missing_docs)] // criterion_group! generates an undocumented function
 
 use std::path::PathBuf;
 use std::time::Duration;

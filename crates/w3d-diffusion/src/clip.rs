@@ -16,8 +16,10 @@ use crate::nn::{LayerNorm, Linear, multi_head_attention};
 use crate::weights::{Init, ParamSource, SafetensorsFile};
 
 /// Per-channel RGB mean of CLIP's normalisation (pixels in `[0, 1]`).
+#[allow(clippy::excessive_precision)] // the published constants, digit for digit
 pub const CLIP_MEAN: [f32; 3] = [0.481_454_66, 0.457_827_5, 0.408_210_73];
 /// Per-channel RGB standard deviation of CLIP's normalisation.
+#[allow(clippy::excessive_precision)] // the published constants, digit for digit
 pub const CLIP_STD: [f32; 3] = [0.268_629_54, 0.261_302_58, 0.275_777_11];
 
 #[derive(Module, Debug)]

@@ -229,7 +229,7 @@ impl UNetConfig {
         if self.act_fn != "silu" {
             return Err(unsupported("act_fn", &self.act_fn, "silu"));
         }
-        if self.block_out_channels.iter().any(|c| c % self.norm_num_groups != 0) {
+        if self.block_out_channels.iter().any(|c| !c.is_multiple_of(self.norm_num_groups)) {
             return Err(Error::invalid("block_out_channels", "multiples of norm_num_groups"));
         }
         match (self.class_embed_type.as_deref(), self.projection_class_embeddings_input_dim) {
@@ -287,7 +287,7 @@ impl UNetConfig {
         }
         for b in 0..n {
             let heads = self.heads(b)?;
-            if heads == 0 || self.block_out_channels[b] % heads != 0 {
+            if heads == 0 || !self.block_out_channels[b].is_multiple_of(heads) {
                 return Err(Error::invalid(
                     "attention_head_dim",
                     format!("a head count dividing block_out_channels[{b}] = {}", self.block_out_channels[b]),
@@ -413,7 +413,7 @@ impl VaeConfig {
         if self.act_fn != "silu" {
             return Err(unsupported("act_fn", &self.act_fn, "silu"));
         }
-        if self.block_out_channels.iter().any(|c| c % self.norm_num_groups != 0) {
+        if self.block_out_channels.iter().any(|c| !c.is_multiple_of(self.norm_num_groups)) {
             return Err(Error::invalid("block_out_channels", "multiples of norm_num_groups"));
         }
         if !self.use_quant_conv || !self.use_post_quant_conv || !self.mid_block_add_attention {
@@ -525,10 +525,10 @@ impl ClipVisionConfig {
         if self.hidden_act != "quick_gelu" && self.hidden_act != "gelu" {
             return Err(unsupported("hidden_act", &self.hidden_act, "quick_gelu or gelu"));
         }
-        if self.num_attention_heads == 0 || self.hidden_size % self.num_attention_heads != 0 {
+        if self.num_attention_heads == 0 || !self.hidden_size.is_multiple_of(self.num_attention_heads) {
             return Err(Error::invalid("num_attention_heads", "a divisor of hidden_size"));
         }
-        if self.patch_size == 0 || self.image_size % self.patch_size != 0 {
+        if self.patch_size == 0 || !self.image_size.is_multiple_of(self.patch_size) {
             return Err(Error::invalid("patch_size", "a divisor of image_size"));
         }
         Ok(())

@@ -224,7 +224,7 @@ impl UNet {
             return Err(Error::invalid("sample", format!("{} channels (found {channels})", c.in_channels)));
         }
         let multiple = 1 << (c.block_out_channels.len() - 1);
-        if h == 0 || w == 0 || h % multiple != 0 || w % multiple != 0 {
+        if h == 0 || w == 0 || !h.is_multiple_of(multiple) || !w.is_multiple_of(multiple) {
             return Err(Error::invalid("sample", format!("height and width multiples of {multiple} (found {h}x{w})")));
         }
         let [cn, _, cw] = context.dims();

@@ -204,7 +204,7 @@ impl Vae {
         if c != self.config.in_channels {
             return Err(Error::invalid("image", format!("{} channels (found {c})", self.config.in_channels)));
         }
-        if h == 0 || w == 0 || h % m != 0 || w % m != 0 {
+        if h == 0 || w == 0 || !h.is_multiple_of(m) || !w.is_multiple_of(m) {
             return Err(Error::invalid("image", format!("height and width multiples of {m} (found {h}x{w})")));
         }
         let mut x = self.encoder_conv_in.forward(image);
