@@ -199,7 +199,11 @@ fn bench(suite: &str, criterion_args: &[String]) -> Result<(), String> {
     println!("\n{} ({} cores), `{}`\n", cpu_model(), cores, report["command"].as_str().unwrap_or(""));
     println!("| benchmark | median (ms) |\n|---|---|");
     for r in &rows {
-        println!("| {} | {:.3} |", r["id"].as_str().unwrap_or(""), r["median_ms"].as_f64().unwrap_or(f64::NAN));
+        match (r["median_ms"].as_f64(), r["ratio"].as_f64()) {
+            (Some(ms), _) => println!("| {} | {ms:.3} |", r["id"].as_str().unwrap_or("")),
+            (None, Some(ratio)) => println!("| {} | ratio {ratio:.2} |", r["id"].as_str().unwrap_or("")),
+            (None, None) => {}
+        }
     }
     println!("\nwrote {}", out.display());
     Ok(())

@@ -7,9 +7,10 @@
 use std::path::PathBuf;
 use std::time::Duration;
 
+use burn::module::Param;
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
-use w3d_diffusion::nn::{ConvAlgorithm, im2col_conv2d};
-use w3d_diffusion::{Device, Tensor, UNet, UNetConfig, gaussian_noise};
+use w3d_diffusion::nn::{Conv2d, ConvAlgorithm};
+use w3d_diffusion::{Device, UNet, UNetConfig, gaussian_noise};
 
 fn unet_config() -> UNetConfig {
     let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs/wonder3d/unet/config.json");
@@ -50,6 +51,7 @@ const CONV_LAYERS: &[(&str, usize, usize, usize, usize, usize, usize)] = &[
     ("res 1280>1280 @4", 1280, 1280, 4, 3, 1, 1),
     ("up res 2560>1280 @8", 2560, 1280, 8, 3, 1, 1),
     ("up res 960>320 @32", 960, 320, 32, 3, 1, 1),
+    ("up res 640>320 @32", 640, 320, 32, 3, 1, 1),
     ("proj 1x1 320 @32", 320, 320, 32, 1, 1, 0),
 ];
 
@@ -59,24 +61,19 @@ fn conv_layers(c: &mut Criterion) {
     group.sample_size(10).measurement_time(Duration::from_secs(3)).warm_up_time(Duration::from_millis(500));
     for &(name, c_in, c_out, side, k, stride, pad) in CONV_LAYERS {
         let x = gaussian_noise([2, c_in, side, side], 1, &device);
-        let w: Tensor<4> = gaussian_noise([c_out, c_in, k, k], 2, &device) * 0.01;
-        let b: Tensor<1> = gaussian_noise([c_out], 3, &device);
-        for algorithm in [ConvAlgorithm::Direct, ConvAlgorithm::Im2col] {
+        let conv = Conv2d {
+            weight: Param::from_tensor(gaussian_noise([c_out, c_in, k, k], 2, &device) * 0.01),
+            bias: Some(Param::from_tensor(gaussian_noise([c_out], 3, &device))),
+            stride,
+            padding: pad,
+        };
+        for algorithm in [ConvAlgorithm::Direct, ConvAlgorithm::Im2col, ConvAlgorithm::Auto] {
             group.bench_with_input(
                 BenchmarkId::new(format!("{algorithm:?}"), name),
                 &algorithm,
                 |bench, &algorithm| {
                     bench.iter(|| {
-                        let y = match algorithm {
-                            ConvAlgorithm::Im2col => im2col_conv2d(x.clone(), w.clone(), Some(b.clone()), stride, pad),
-                            ConvAlgorithm::Direct => burn::tensor::module::conv2d(
-                                x.clone(),
-                                w.clone(),
-                                Some(b.clone()),
-                                burn::tensor::ops::ConvOptions::new([stride, stride], [pad, pad], [1, 1], 1),
-                            ),
-                        };
-                        y.into_data().try_to_vec::<f32>().expect("values")
+                        conv.forward_with(x.clone(), algorithm).into_data().try_to_vec::<f32>().expect("values")
                     })
                 },
             );

@@ -52,13 +52,22 @@ impl Linear {
 /// How a 2-D convolution is computed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum ConvAlgorithm {
-    /// Patches gathered by slicing (im2col) and multiplied with one GEMM; ~7x faster than the
-    /// backend kernel on CPU.
+    /// [`ConvAlgorithm::Im2col`] for stride-1 convolutions whose column buffer stays at most
+    /// [`IM2COL_MAX_FLOATS`] values, [`ConvAlgorithm::Direct`] otherwise (chosen from per-layer
+    /// timings of the UNet's shapes on flex, see `docs/benchmarks.md`).
     #[default]
+    Auto,
+    /// Patches gathered by slicing (im2col) and multiplied with one GEMM: 1.1-4.7x faster than
+    /// the backend kernel on CPU at the UNet's 4x4-16x16 levels, 1.6x slower at 32x32 with
+    /// 320+ channels (the column buffer outgrows the caches).
     Im2col,
     /// The backend's own `conv2d`.
     Direct,
 }
+
+/// Largest im2col column buffer (`n · c · k² · h_out · w_out` values) [`ConvAlgorithm::Auto`]
+/// still uses im2col for.
+pub const IM2COL_MAX_FLOATS: usize = 4 << 20;
 
 /// A 2-D convolution with square kernel, stride and zero padding (PyTorch `nn.Conv2d`).
 #[derive(Module, Debug)]
@@ -100,8 +109,18 @@ impl Conv2d {
     /// rounding).
     pub fn forward_with(&self, x: Tensor<4>, algorithm: ConvAlgorithm) -> Tensor<4> {
         let bias = self.bias.as_ref().map(|b| b.val());
+        let algorithm = match algorithm {
+            ConvAlgorithm::Auto => {
+                let [n, c, h, w] = x.dims();
+                let [_, _, k, _] = self.weight.dims();
+                let (p, st) = (self.padding, self.stride);
+                let out = ((h + 2 * p).saturating_sub(k) / st + 1) * ((w + 2 * p).saturating_sub(k) / st + 1);
+                if st == 1 && n * c * k * k * out <= IM2COL_MAX_FLOATS { ConvAlgorithm::Im2col } else { ConvAlgorithm::Direct }
+            }
+            other => other,
+        };
         match algorithm {
-            ConvAlgorithm::Direct => {
+            ConvAlgorithm::Auto | ConvAlgorithm::Direct => {
                 let (s, p) = (self.stride, self.padding);
                 conv2d(x, self.weight.val(), bias, ConvOptions::new([s, s], [p, p], [1, 1], 1))
             }
