@@ -3,6 +3,7 @@
 //!
 //! Images are `[batch, channels, height, width]`; token sequences are `[batch, tokens, width]`.
 
+use burn::backend::DispatchDevice;
 use burn::module::{Module, Param};
 use burn::tensor::activation::silu;
 use burn::tensor::module::{attention, conv2d, layer_norm};
@@ -52,9 +53,11 @@ impl Linear {
 /// How a 2-D convolution is computed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum ConvAlgorithm {
-    /// [`ConvAlgorithm::Im2col`] for stride-1 convolutions whose column buffer stays at most
-    /// [`IM2COL_MAX_FLOATS`] values, [`ConvAlgorithm::Direct`] otherwise (chosen from per-layer
-    /// timings of the UNet's shapes on flex, see `docs/benchmarks.md`).
+    /// Per backend, from per-layer timings of the UNet's shapes (`docs/benchmarks.md`): on
+    /// flex [`ConvAlgorithm::Im2col`] for stride-1 convolutions whose column buffer stays at
+    /// most [`IM2COL_MAX_FLOATS`] values and [`ConvAlgorithm::Direct`] otherwise; on ndarray
+    /// (whose own conv2d is several times slower) always im2col; on GPU backends the backend's
+    /// conv2d.
     #[default]
     Auto,
     /// Patches gathered by slicing (im2col) and multiplied with one GEMM: 1.1-4.7x faster than
@@ -115,7 +118,13 @@ impl Conv2d {
                 let [_, _, k, _] = self.weight.dims();
                 let (p, st) = (self.padding, self.stride);
                 let out = ((h + 2 * p).saturating_sub(k) / st + 1) * ((w + 2 * p).saturating_sub(k) / st + 1);
-                if st == 1 && n * c * k * k * out <= IM2COL_MAX_FLOATS { ConvAlgorithm::Im2col } else { ConvAlgorithm::Direct }
+                match x.device().inner().as_dispatch() {
+                    DispatchDevice::NdArray(_) => ConvAlgorithm::Im2col,
+                    DispatchDevice::Flex(_) if st == 1 && n * c * k * k * out <= IM2COL_MAX_FLOATS => {
+                        ConvAlgorithm::Im2col
+                    }
+                    _ => ConvAlgorithm::Direct,
+                }
             }
             other => other,
         };
