@@ -223,8 +223,11 @@ impl<'a> ParamSource<'a> {
         let Source::File { file, renamed, used } = self.source else {
             return Ok(());
         };
-        let unexpected: Vec<String> =
-            renamed.iter().filter(|(_, f)| !used.contains(*f)).map(|(name, f)| format!("{f} (as {name})")).collect();
+        let unexpected: Vec<String> = renamed
+            .iter()
+            .filter(|(_, f)| !used.contains(*f))
+            .map(|(name, f)| if name == f { f.clone() } else { format!("{f} (read as {name})") })
+            .collect();
         if self.missing.is_empty() && self.wrong.is_empty() && unexpected.is_empty() && self.unreadable.is_empty() {
             return Ok(());
         }

@@ -217,6 +217,9 @@ fn bad_scheduler_settings_are_rejected() {
     let bad = SchedulerConfig { prediction_type: "flow".into(), ..SchedulerConfig::default() };
     assert!(DdimScheduler::new(bad, 10).is_err());
     assert!(DdimInverseScheduler::new(config("linspace", 0), 10).is_err());
-    let json = fixture("scheduler_config_bad.json");
-    assert!(SchedulerConfig::from_file(json).is_err(), "missing file");
+    let path = std::env::temp_dir().join(format!("w3d-diffusion-scheduler-{}.json", std::process::id()));
+    std::fs::write(&path, r#"{"beta_schedule": "sigmoid", "num_train_timesteps": 1000}"#).unwrap();
+    let message = SchedulerConfig::from_file(&path).unwrap_err().to_string();
+    std::fs::remove_file(&path).unwrap();
+    assert!(message.contains("beta_schedule") && message.contains("sigmoid") && message.contains(".json"), "{message}");
 }
