@@ -51,6 +51,16 @@ pub fn default_device() -> Device {
     Device::flex()
 }
 
+/// A hardware GPU through wgpu (feature `wgpu`): `None` when no adapter exists or when the
+/// only one is a software (CPU) adapter such as Mesa llvmpipe, which is far slower than
+/// [`default_device`].
+#[cfg(feature = "wgpu")]
+pub fn gpu_device() -> Option<Device> {
+    let (device, setup) = Device::wgpu_options().init_with_setup().ok()?;
+    let kind = setup.adapter.get_info().device_type;
+    (kind != burn::tensor::wgpu::wgpu::DeviceType::Cpu).then_some(device)
+}
+
 /// The `ndarray` CPU backend (the product design's test backend; deprecated in Burn 0.22).
 #[allow(deprecated)]
 pub fn ndarray_device() -> Device {

@@ -3,7 +3,7 @@
 
 mod common;
 
-use common::{cpu_devices, max_abs, max_abs_diff};
+use common::{max_abs, max_abs_diff, test_devices};
 use w3d_diffusion::gaussian_noise;
 use w3d_diffusion::nn::im2col_conv2d;
 use w3d_diffusion::{Tensor, TensorData};
@@ -18,7 +18,7 @@ fn im2col_matches_direct_convolution() {
         (6, 3, 8, 5, 1, 1, 0),
         (3, 8, 12, 18, 6, 6, 0),
     ];
-    for (name, device) in cpu_devices() {
+    for (name, device) in test_devices() {
         for (i, &(c_in, c_out, h, w, k, s, p)) in cases.iter().enumerate() {
             let seed = 10 * i as u64;
             let x = gaussian_noise([2, c_in, h, w], seed, &device);

@@ -4,12 +4,12 @@
 
 mod common;
 
-use common::{cpu_devices, fixture, max_abs, max_abs_diff, tensor, values};
+use common::{fixture, max_abs, max_abs_diff, tensor, test_devices, values};
 use w3d_diffusion::{ClipVision, SafetensorsFile, Tensor, TensorData, UNet, Vae, clip_preprocess};
 
 #[test]
 fn unet_matches_diffusers() {
-    for (name, device) in cpu_devices() {
+    for (name, device) in test_devices() {
         let unet = UNet::from_dir(fixture("unet"), &device).unwrap();
         let mut io = SafetensorsFile::open(fixture("unet/io.safetensors")).unwrap();
         let timesteps: Vec<f32> = values(tensor::<1>(&mut io, "timesteps", &device));
@@ -31,7 +31,7 @@ fn unet_matches_diffusers() {
 
 #[test]
 fn vae_encode_and_decode_match_diffusers() {
-    for (name, device) in cpu_devices() {
+    for (name, device) in test_devices() {
         let vae = Vae::from_dir(fixture("vae"), &device).unwrap();
         let mut io = SafetensorsFile::open(fixture("vae/io.safetensors")).unwrap();
         let mean = vae.encode_mean(tensor(&mut io, "image", &device)).unwrap();
@@ -46,7 +46,7 @@ fn vae_encode_and_decode_match_diffusers() {
 
 #[test]
 fn clip_image_embeddings_match_transformers() {
-    for (name, device) in cpu_devices() {
+    for (name, device) in test_devices() {
         let clip = ClipVision::from_dir(fixture("clip"), &device).unwrap();
         let mut io = SafetensorsFile::open(fixture("clip/io.safetensors")).unwrap();
         let embeds = clip.image_embeds(tensor(&mut io, "pixels", &device)).unwrap();
