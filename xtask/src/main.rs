@@ -13,6 +13,13 @@
 //! - `cargo xtask fixtures eval`: regenerates the peer-parity fixtures of `w3d-eval`
 //!   (Python: a venv in `target/tools/evalvenv` with trimesh, point-cloud-utils, mesh2sdf,
 //!   scikit-image from PyPI). The outputs are committed; tests never need Python.
+//! - `cargo xtask fixtures diffusion`: regenerates the parity fixtures of `w3d-diffusion`
+//!   (tiny random-weight diffusers / transformers models, `xtask/python/fixtures_diffusion.py`)
+//!   with the Python named by `W3D_PYTHON`, or a venv in `target/tools/diffusionvenv` with
+//!   torch (CPU), diffusers, transformers, safetensors and pillow from PyPI.
+//! - `cargo xtask bench diffusion` also times diffusers' UNet on torch CPU (same config and
+//!   input, `xtask/python/bench_diffusion_torch.py`) with that Python, and records it and the
+//!   burn / torch ratios in `target/bench/diffusion.json`.
 //! - `cargo xtask validate-glb FILE...`: runs the Khronos glTF validator (npm package
 //!   `gltf-validator`, installed into `target/tools/node` on first use; needs `node` and
 //!   `npm`) and fails if any file has an error.
@@ -52,7 +59,7 @@ enum Task {
     },
     /// Regenerate committed test fixtures with the Python peer tools.
     Fixtures {
-        /// Which fixtures: `eval`.
+        /// Which fixtures: `eval` or `diffusion`.
         which: String,
     },
     /// Draw the SVG charts in docs/ (speed against accuracy) from target/bench/*.json.
@@ -149,6 +156,42 @@ fn cpu_model() -> String {
         .unwrap_or_else(|| "unknown CPU".into())
 }
 
+/// Times diffusers' UNet on torch CPU (same config and input as the burn benchmark) and adds
+/// it, plus the burn / torch ratio of each burn backend, to `rows`.
+fn torch_comparison(rows: &mut Vec<serde_json::Value>) -> Result<(), String> {
+    let root = workspace_root();
+    let output = Command::new(diffusion_python()?)
+        .current_dir(&root)
+        .arg("xtask/python/bench_diffusion_torch.py")
+        .arg(&root)
+        .output()
+        .map_err(|e| format!("cannot run the torch benchmark: {e}"))?;
+    if !output.status.success() {
+        return Err(format!("torch benchmark failed: {}", String::from_utf8_lossy(&output.stderr)));
+    }
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let torch: serde_json::Value = stdout
+        .lines()
+        .rev()
+        .find_map(|l| serde_json::from_str(l).ok())
+        .ok_or_else(|| format!("torch benchmark printed no JSON: {stdout}"))?;
+    let torch_ms = torch["median_ms"].as_f64().ok_or("torch benchmark: no median_ms")?;
+    let ratios: Vec<serde_json::Value> = rows
+        .iter()
+        .filter(|r| r["id"].as_str().is_some_and(|id| id.starts_with("unet_forward_b2_32x32/")))
+        .filter_map(|r| {
+            let ms = r["median_ms"].as_f64()?;
+            Some(serde_json::json!({ "id": format!("{} / torch", r["id"].as_str()?), "ratio": ms / torch_ms }))
+        })
+        .collect();
+    rows.push(serde_json::json!({ "id": "unet_forward_b2_32x32/torch", "median_ms": torch_ms, "mean_ms": null, "torch": torch }));
+    for r in ratios {
+        println!("{}: {:.2}", r["id"].as_str().unwrap_or(""), r["ratio"].as_f64().unwrap_or(f64::NAN));
+        rows.push(r);
+    }
+    Ok(())
+}
+
 fn bench(suite: &str, criterion_args: &[String]) -> Result<(), String> {
     if suite == "recon" {
         return recon::run(criterion_args);
@@ -168,6 +211,9 @@ fn bench(suite: &str, criterion_args: &[String]) -> Result<(), String> {
         let ms = |k: &str| v[k]["point_estimate"].as_f64().map(|ns| ns / 1e6);
         rows.push(serde_json::json!({ "id": id, "median_ms": ms("median"), "mean_ms": ms("mean") }));
     }
+    if suite == "diffusion" {
+        torch_comparison(&mut rows)?;
+    }
     let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
     let report = serde_json::json!({
         "suite": suite,
@@ -183,7 +229,11 @@ fn bench(suite: &str, criterion_args: &[String]) -> Result<(), String> {
     println!("\n{} ({} cores), `{}`\n", cpu_model(), cores, report["command"].as_str().unwrap_or(""));
     println!("| benchmark | median (ms) |\n|---|---|");
     for r in &rows {
-        println!("| {} | {:.3} |", r["id"].as_str().unwrap_or(""), r["median_ms"].as_f64().unwrap_or(f64::NAN));
+        match (r["median_ms"].as_f64(), r["ratio"].as_f64()) {
+            (Some(ms), _) => println!("| {} | {ms:.3} |", r["id"].as_str().unwrap_or("")),
+            (None, Some(ratio)) => println!("| {} | ratio {ratio:.2} |", r["id"].as_str().unwrap_or("")),
+            (None, None) => {}
+        }
     }
     println!("\nwrote {}", out.display());
     Ok(())
@@ -193,9 +243,43 @@ fn bench(suite: &str, criterion_args: &[String]) -> Result<(), String> {
 const EVAL_FIXTURE_PACKAGES: &[&str] =
     &["numpy", "scipy", "pillow", "trimesh", "point-cloud-utils", "mesh2sdf", "scikit-image"];
 
+/// Python packages of the diffusion fixtures and the torch benchmark.
+const DIFFUSION_PACKAGES: &[&str] = &["torch", "diffusers", "transformers", "safetensors", "pillow", "numpy"];
+
+/// The Python with torch + diffusers: `W3D_PYTHON`, or a venv under `target/tools` (created on
+/// first use; torch from the CPU wheel index when reachable, else PyPI).
+fn diffusion_python() -> Result<PathBuf, String> {
+    if let Some(python) = std::env::var_os("W3D_PYTHON") {
+        return Ok(PathBuf::from(python));
+    }
+    let venv = workspace_root().join("target").join("tools").join("diffusionvenv");
+    let python = venv.join("bin").join("python");
+    if !python.is_file() {
+        run(Command::new("python3").args(["-m", "venv"]).arg(&venv))?;
+        let cpu_torch = run(Command::new(&python).args([
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "torch",
+            "--index-url",
+            "https://download.pytorch.org/whl/cpu",
+        ]));
+        if cpu_torch.is_err() {
+            eprintln!("CPU torch wheel index unreachable; installing torch from PyPI");
+        }
+        run(Command::new(&python).args(["-m", "pip", "install", "--quiet"]).args(DIFFUSION_PACKAGES))?;
+    }
+    Ok(python)
+}
+
 fn fixtures(which: &str) -> Result<(), String> {
+    if which == "diffusion" {
+        let root = workspace_root();
+        return run(Command::new(diffusion_python()?).current_dir(&root).arg("xtask/python/fixtures_diffusion.py"));
+    }
     if which != "eval" {
-        return Err(format!("unknown fixture set {which:?}; expected `eval`"));
+        return Err(format!("unknown fixture set {which:?}; expected `eval` or `diffusion`"));
     }
     let root = workspace_root();
     let venv = root.join("target").join("tools").join("evalvenv");

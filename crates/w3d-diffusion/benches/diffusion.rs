@@ -1,0 +1,86 @@
+//! `cargo xtask bench diffusion`: the real-size UNet forward (batch 2 × 8 × 32 × 32, the
+//! Wonder3D base config, random weights) on flex and ndarray, and the UNet's convolution
+//! layers with the backend `conv2d` (direct) against im2col + GEMM. The xtask then times
+//! diffusers on torch CPU with the same config and input (xtask/python/bench_diffusion_torch.py).
+#![allow(missing_docs)] // criterion_group! generates an undocumented function
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use burn::module::Param;
+use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
+use w3d_diffusion::nn::{Conv2d, ConvAlgorithm};
+use w3d_diffusion::{Device, UNet, UNetConfig, gaussian_noise};
+
+fn unet_config() -> UNetConfig {
+    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs/wonder3d/unet/config.json");
+    UNetConfig::from_file(path).expect("real UNet config")
+}
+
+fn devices() -> Vec<(&'static str, Device)> {
+    vec![("flex", w3d_diffusion::default_device()), ("ndarray", w3d_diffusion::ndarray_device())]
+}
+
+fn unet_forward(c: &mut Criterion) {
+    let mut group = c.benchmark_group("unet_forward_b2_32x32");
+    group.sample_size(10).measurement_time(Duration::from_secs(30)).warm_up_time(Duration::from_secs(1));
+    for (name, device) in devices() {
+        let unet = UNet::random(&unet_config(), 1, &device).expect("unet");
+        let sample = gaussian_noise([2, 8, 32, 32], 1, &device);
+        let context = gaussian_noise([2, 1, 768], 2, &device);
+        let labels = gaussian_noise([2, 14], 3, &device);
+        group.bench_function(name, |b| {
+            b.iter(|| {
+                let out =
+                    unet.forward(sample.clone(), &[500.0], context.clone(), Some(labels.clone())).expect("forward");
+                out.into_data().try_to_vec::<f32>().expect("values")
+            })
+        });
+    }
+    group.finish();
+}
+
+/// The distinct convolution layers of the real UNet at batch 2 (32×32 latents):
+/// (name, c_in, c_out, side, kernel, stride, padding).
+const CONV_LAYERS: &[(&str, usize, usize, usize, usize, usize, usize)] = &[
+    ("conv_in 8>320 @32", 8, 320, 32, 3, 1, 1),
+    ("res 320>320 @32", 320, 320, 32, 3, 1, 1),
+    ("down 320 s2 @32", 320, 320, 32, 3, 2, 1),
+    ("res 640>640 @16", 640, 640, 16, 3, 1, 1),
+    ("res 1280>1280 @8", 1280, 1280, 8, 3, 1, 1),
+    ("res 1280>1280 @4", 1280, 1280, 4, 3, 1, 1),
+    ("up res 2560>1280 @8", 2560, 1280, 8, 3, 1, 1),
+    ("up res 960>320 @32", 960, 320, 32, 3, 1, 1),
+    ("up res 640>320 @32", 640, 320, 32, 3, 1, 1),
+    ("proj 1x1 320 @32", 320, 320, 32, 1, 1, 0),
+];
+
+fn conv_layers(c: &mut Criterion) {
+    let device = w3d_diffusion::default_device();
+    let mut group = c.benchmark_group("conv_b2_flex");
+    group.sample_size(10).measurement_time(Duration::from_secs(3)).warm_up_time(Duration::from_millis(500));
+    for &(name, c_in, c_out, side, k, stride, pad) in CONV_LAYERS {
+        let x = gaussian_noise([2, c_in, side, side], 1, &device);
+        let conv = Conv2d {
+            weight: Param::from_tensor(gaussian_noise([c_out, c_in, k, k], 2, &device) * 0.01),
+            bias: Some(Param::from_tensor(gaussian_noise([c_out], 3, &device))),
+            stride,
+            padding: pad,
+        };
+        for algorithm in [ConvAlgorithm::Direct, ConvAlgorithm::Im2col, ConvAlgorithm::Auto] {
+            group.bench_with_input(
+                BenchmarkId::new(format!("{algorithm:?}"), name),
+                &algorithm,
+                |bench, &algorithm| {
+                    bench.iter(|| {
+                        conv.forward_with(x.clone(), algorithm).into_data().try_to_vec::<f32>().expect("values")
+                    })
+                },
+            );
+        }
+    }
+    group.finish();
+}
+
+criterion_group!(benches, conv_layers, unet_forward);
+criterion_main!(benches);

@@ -1,0 +1,283 @@
+//! diffusers building blocks: ResNet block with time embedding, down/up-sampling, the
+//! attention layer, the spatial transformer (`Transformer2DModel`) with self-attention,
+//! cross-attention and GEGLU feed-forward, and the timestep embedding MLP.
+
+use burn::module::Module;
+use burn::tensor::Tensor;
+use burn::tensor::activation::{gelu, silu};
+
+use crate::nn::{Conv2d, GroupNorm, LayerNorm, Linear, multi_head_attention};
+use crate::weights::ParamSource;
+
+/// `ResnetBlock2D`: GroupNorm → SiLU → conv → (+ time embedding) → GroupNorm → SiLU → conv,
+/// plus a (1x1-projected) skip connection, divided by `output_scale`.
+#[derive(Module, Debug)]
+pub struct ResnetBlock {
+    norm1: GroupNorm,
+    conv1: Conv2d,
+    time_emb_proj: Option<Linear>,
+    norm2: GroupNorm,
+    conv2: Conv2d,
+    conv_shortcut: Option<Conv2d>,
+    output_scale: f64,
+}
+
+/// Shape of a ResNet block.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct ResnetShape {
+    pub c_in: usize,
+    pub c_out: usize,
+    pub temb: Option<usize>,
+    pub groups: usize,
+    pub eps: f64,
+    pub output_scale: f64,
+}
+
+impl ResnetBlock {
+    pub(crate) fn load(p: &mut ParamSource, key: &str, s: ResnetShape) -> Self {
+        Self {
+            norm1: GroupNorm::load(p, &format!("{key}.norm1"), s.groups, s.c_in, s.eps),
+            conv1: Conv2d::load(p, &format!("{key}.conv1"), s.c_in, s.c_out, 3, 1, 1, true),
+            time_emb_proj: s.temb.map(|t| Linear::load(p, &format!("{key}.time_emb_proj"), t, s.c_out, true)),
+            norm2: GroupNorm::load(p, &format!("{key}.norm2"), s.groups, s.c_out, s.eps),
+            conv2: Conv2d::load(p, &format!("{key}.conv2"), s.c_out, s.c_out, 3, 1, 1, true),
+            conv_shortcut: (s.c_in != s.c_out)
+                .then(|| Conv2d::load(p, &format!("{key}.conv_shortcut"), s.c_in, s.c_out, 1, 1, 0, true)),
+            output_scale: s.output_scale,
+        }
+    }
+
+    /// `x [n, c_in, h, w]`, `temb_silu` = SiLU of the time embedding `[n, temb]`.
+    pub fn forward(&self, x: Tensor<4>, temb_silu: Option<&Tensor<2>>) -> Tensor<4> {
+        let mut h = self.conv1.forward(self.norm1.forward_silu(x.clone()));
+        if let (Some(proj), Some(t)) = (&self.time_emb_proj, temb_silu) {
+            let t = proj.forward(t.clone());
+            let [n, c] = t.dims();
+            h = h + t.reshape([n, c, 1, 1]);
+        }
+        let h = self.conv2.forward(self.norm2.forward_silu(h));
+        let skip = match &self.conv_shortcut {
+            Some(conv) => conv.forward(x),
+            None => x,
+        };
+        let out = skip + h;
+        if self.output_scale == 1.0 { out } else { out / self.output_scale }
+    }
+}
+
+/// `Downsample2D` with a stride-2 3x3 convolution (`padding = 0` pads right/bottom by one,
+/// as diffusers does).
+#[derive(Module, Debug)]
+pub struct Downsample {
+    conv: Conv2d,
+    pad_right_bottom: bool,
+}
+
+impl Downsample {
+    pub(crate) fn load(p: &mut ParamSource, key: &str, channels: usize, padding: usize) -> Self {
+        Self {
+            conv: Conv2d::load(p, &format!("{key}.conv"), channels, channels, 3, 2, padding, true),
+            pad_right_bottom: padding == 0,
+        }
+    }
+
+    /// Halves the spatial size.
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        let x = if self.pad_right_bottom { x.pad((0, 1, 0, 1), burn::tensor::ops::PadMode::Constant(0.0)) } else { x };
+        self.conv.forward(x)
+    }
+}
+
+/// `Upsample2D`: nearest-neighbour ×2 then a 3x3 convolution.
+#[derive(Module, Debug)]
+pub struct Upsample {
+    conv: Conv2d,
+}
+
+impl Upsample {
+    pub(crate) fn load(p: &mut ParamSource, key: &str, channels: usize) -> Self {
+        Self { conv: Conv2d::load(p, &format!("{key}.conv"), channels, channels, 3, 1, 1, true) }
+    }
+
+    /// Doubles the spatial size.
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        self.conv.forward(upsample_nearest2x(x))
+    }
+}
+
+/// Nearest-neighbour ×2 up-sampling of `[n, c, h, w]`.
+pub fn upsample_nearest2x(x: Tensor<4>) -> Tensor<4> {
+    let [n, c, h, w] = x.dims();
+    let x: Tensor<6> = x.reshape([n, c, h, 1, w, 1]);
+    x.expand([n, c, h, 2, w, 2]).reshape([n, c, 2 * h, 2 * w])
+}
+
+/// diffusers `Attention` on token sequences: q/k/v projections, multi-head SDPA, output
+/// projection (`to_out.0`).
+#[derive(Module, Debug)]
+pub struct Attention {
+    to_q: Linear,
+    to_k: Linear,
+    to_v: Linear,
+    to_out: Linear,
+    heads: usize,
+}
+
+impl Attention {
+    /// `dim` query width, `context_dim` key/value input width, `bias` on q/k/v.
+    pub(crate) fn load(
+        p: &mut ParamSource,
+        key: &str,
+        dim: usize,
+        context_dim: usize,
+        heads: usize,
+        bias: bool,
+    ) -> Self {
+        Self {
+            to_q: Linear::load(p, &format!("{key}.to_q"), dim, dim, bias),
+            to_k: Linear::load(p, &format!("{key}.to_k"), context_dim, dim, bias),
+            to_v: Linear::load(p, &format!("{key}.to_v"), context_dim, dim, bias),
+            to_out: Linear::load(p, &format!("{key}.to_out.0"), dim, dim, true),
+            heads,
+        }
+    }
+
+    /// `x [b, t, dim]` attends to `context [b, s, context_dim]` (or to itself).
+    pub fn forward(&self, x: Tensor<3>, context: Option<&Tensor<3>>) -> Tensor<3> {
+        let context = context.cloned().unwrap_or_else(|| x.clone());
+        let q = self.to_q.forward(x);
+        let k = self.to_k.forward(context.clone());
+        let v = self.to_v.forward(context);
+        self.to_out.forward(multi_head_attention(q, k, v, self.heads))
+    }
+}
+
+/// `BasicTransformerBlock`: pre-norm self-attention, cross-attention and GEGLU feed-forward,
+/// each with a residual connection.
+#[derive(Module, Debug)]
+pub struct TransformerBlock {
+    norm1: LayerNorm,
+    attn1: Attention,
+    norm2: LayerNorm,
+    attn2: Attention,
+    norm3: LayerNorm,
+    ff_proj: Linear,
+    ff_out: Linear,
+}
+
+impl TransformerBlock {
+    fn load(p: &mut ParamSource, key: &str, dim: usize, heads: usize, cross_dim: usize) -> Self {
+        let inner = 4 * dim;
+        Self {
+            norm1: LayerNorm::load(p, &format!("{key}.norm1"), dim, 1e-5),
+            attn1: Attention::load(p, &format!("{key}.attn1"), dim, dim, heads, false),
+            norm2: LayerNorm::load(p, &format!("{key}.norm2"), dim, 1e-5),
+            attn2: Attention::load(p, &format!("{key}.attn2"), dim, cross_dim, heads, false),
+            norm3: LayerNorm::load(p, &format!("{key}.norm3"), dim, 1e-5),
+            ff_proj: Linear::load(p, &format!("{key}.ff.net.0.proj"), dim, 2 * inner, true),
+            ff_out: Linear::load(p, &format!("{key}.ff.net.2"), inner, dim, true),
+        }
+    }
+
+    fn forward(&self, x: Tensor<3>, context: &Tensor<3>) -> Tensor<3> {
+        let x = self.attn1.forward(self.norm1.forward(x.clone()), None) + x;
+        let x = self.attn2.forward(self.norm2.forward(x.clone()), Some(context)) + x;
+        let h = self.ff_proj.forward(self.norm3.forward(x.clone()));
+        let [b, t, two_inner] = h.dims();
+        let inner = two_inner / 2;
+        let hidden = h.clone().slice([0..b, 0..t, 0..inner]);
+        let gate = h.slice([0..b, 0..t, inner..two_inner]);
+        self.ff_out.forward(hidden * gelu(gate)) + x
+    }
+}
+
+/// The transformer's in/out projection: a 1x1 convolution or a linear layer.
+#[derive(Module, Debug)]
+enum Projection {
+    Conv(Conv2d),
+    Linear(Linear),
+}
+
+/// `Transformer2DModel` (continuous input): GroupNorm → projection in → transformer blocks on
+/// the `h·w` tokens → projection out, plus the input.
+#[derive(Module, Debug)]
+pub struct SpatialTransformer {
+    norm: GroupNorm,
+    proj_in: Projection,
+    blocks: Vec<TransformerBlock>,
+    proj_out: Projection,
+}
+
+/// Shape of a spatial transformer.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct TransformerShape {
+    pub channels: usize,
+    pub heads: usize,
+    pub layers: usize,
+    pub cross_dim: usize,
+    pub groups: usize,
+    pub linear_projection: bool,
+}
+
+impl SpatialTransformer {
+    pub(crate) fn load(p: &mut ParamSource, key: &str, s: TransformerShape) -> Self {
+        let c = s.channels;
+        let proj = |p: &mut ParamSource, name: &str| {
+            let k = format!("{key}.{name}");
+            if s.linear_projection {
+                Projection::Linear(Linear::load(p, &k, c, c, true))
+            } else {
+                Projection::Conv(Conv2d::load(p, &k, c, c, 1, 1, 0, true))
+            }
+        };
+        let norm = GroupNorm::load(p, &format!("{key}.norm"), s.groups, c, 1e-6);
+        let proj_in = proj(p, "proj_in");
+        let blocks = (0..s.layers)
+            .map(|l| TransformerBlock::load(p, &format!("{key}.transformer_blocks.{l}"), c, s.heads, s.cross_dim))
+            .collect();
+        let proj_out = proj(p, "proj_out");
+        Self { norm, proj_in, blocks, proj_out }
+    }
+
+    /// `x [n, c, h, w]`, `context [n, s, cross_dim]`.
+    pub fn forward(&self, x: Tensor<4>, context: &Tensor<3>) -> Tensor<4> {
+        let [n, c, h, w] = x.dims();
+        let residual = x.clone();
+        let x = self.norm.forward(x);
+        let to_tokens = |x: Tensor<4>| x.reshape([n, c, h * w]).swap_dims(1, 2);
+        let mut tokens = match &self.proj_in {
+            Projection::Conv(conv) => to_tokens(conv.forward(x)),
+            Projection::Linear(lin) => lin.forward(to_tokens(x)),
+        };
+        for block in &self.blocks {
+            tokens = block.forward(tokens, context);
+        }
+        let to_image = |t: Tensor<3>| t.swap_dims(1, 2).reshape([n, c, h, w]);
+        let out = match &self.proj_out {
+            Projection::Conv(conv) => conv.forward(to_image(tokens)),
+            Projection::Linear(lin) => to_image(lin.forward(tokens)),
+        };
+        out + residual
+    }
+}
+
+/// `TimestepEmbedding`: linear → SiLU → linear.
+#[derive(Module, Debug)]
+pub struct TimestepEmbedding {
+    linear_1: Linear,
+    linear_2: Linear,
+}
+
+impl TimestepEmbedding {
+    pub(crate) fn load(p: &mut ParamSource, key: &str, d_in: usize, d_out: usize) -> Self {
+        Self {
+            linear_1: Linear::load(p, &format!("{key}.linear_1"), d_in, d_out, true),
+            linear_2: Linear::load(p, &format!("{key}.linear_2"), d_out, d_out, true),
+        }
+    }
+
+    /// `[n, d_in] → [n, d_out]`.
+    pub fn forward(&self, x: Tensor<2>) -> Tensor<2> {
+        self.linear_2.forward(silu(self.linear_1.forward(x)))
+    }
+}

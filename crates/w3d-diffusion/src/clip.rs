@@ -1,0 +1,269 @@
+//! CLIP vision transformer with projection (transformers `CLIPVisionModelWithProjection`) and
+//! the `CLIPImageProcessor` preprocessing.
+//!
+//! Pixels in: `[n, 3, image_size, image_size]`, normalised with [`CLIP_MEAN`] / [`CLIP_STD`].
+//! Out: image embeddings `[n, projection_dim]` (the projected, post-LayerNorm class token).
+
+use std::path::Path;
+
+use burn::module::Module;
+use burn::tensor::activation::{gelu, sigmoid};
+use burn::tensor::{Device, Tensor, TensorData};
+use w3d_core::Error;
+
+use crate::config::ClipVisionConfig;
+use crate::nn::{LayerNorm, Linear, multi_head_attention};
+use crate::weights::{Init, ParamSource, SafetensorsFile};
+
+/// Per-channel RGB mean of CLIP's normalisation (pixels in `[0, 1]`).
+#[allow(clippy::excessive_precision)] // the published constants, digit for digit
+pub const CLIP_MEAN: [f32; 3] = [0.481_454_66, 0.457_827_5, 0.408_210_73];
+/// Per-channel RGB standard deviation of CLIP's normalisation.
+#[allow(clippy::excessive_precision)] // the published constants, digit for digit
+pub const CLIP_STD: [f32; 3] = [0.268_629_54, 0.261_302_58, 0.275_777_11];
+
+#[derive(Module, Debug)]
+struct EncoderLayer {
+    layer_norm1: LayerNorm,
+    q_proj: Linear,
+    k_proj: Linear,
+    v_proj: Linear,
+    out_proj: Linear,
+    layer_norm2: LayerNorm,
+    fc1: Linear,
+    fc2: Linear,
+}
+
+/// The CLIP image encoder (see the module docs).
+#[derive(Module, Debug)]
+pub struct ClipVision {
+    class_embedding: burn::module::Param<Tensor<1>>,
+    /// Patch embedding as a linear map of flattened `[c, p, p]` patches: `[c·p·p, hidden]`.
+    patch_embedding: Linear,
+    position_embedding: burn::module::Param<Tensor<2>>,
+    pre_layrnorm: LayerNorm,
+    layers: Vec<EncoderLayer>,
+    post_layernorm: LayerNorm,
+    visual_projection: Linear,
+    #[module(skip)]
+    config: ClipVisionConfig,
+}
+
+impl ClipVision {
+    /// Loads `config` with the weights of a transformers `model.safetensors`.
+    pub fn load(config: &ClipVisionConfig, weights: impl AsRef<Path>, device: &Device) -> Result<Self, Error> {
+        config.validate()?;
+        let mut file = SafetensorsFile::open(weights)?;
+        let mut p = ParamSource::from_file(&mut file, str::to_string, device);
+        p.ignore(|k| k == "vision_model.embeddings.position_ids");
+        let model = Self::build(config, &mut p);
+        p.finish()?;
+        Ok(model)
+    }
+
+    /// Loads `config.json` and `model.safetensors` from an `image_encoder/` folder.
+    pub fn from_dir(dir: impl AsRef<Path>, device: &Device) -> Result<Self, Error> {
+        let dir = dir.as_ref();
+        let config = ClipVisionConfig::from_file(dir.join("config.json"))?;
+        Self::load(&config, dir.join("model.safetensors"), device)
+    }
+
+    /// `config` with seeded random weights.
+    pub fn random(config: &ClipVisionConfig, seed: u64, device: &Device) -> Result<Self, Error> {
+        config.validate()?;
+        Ok(Self::build(config, &mut ParamSource::random(seed, device)))
+    }
+
+    /// The config this model was built from.
+    pub fn config(&self) -> &ClipVisionConfig {
+        &self.config
+    }
+
+    fn build(c: &ClipVisionConfig, p: &mut ParamSource) -> Self {
+        let d = c.hidden_size;
+        let patch = c.patch_size;
+        let patch_in = c.num_channels * patch * patch;
+        let tokens = c.patches_per_side().pow(2) + 1;
+        let class_embedding = p.param("vision_model.embeddings.class_embedding", [d], Init::Uniform { fan_in: d });
+        let w = p.values(
+            "vision_model.embeddings.patch_embedding.weight",
+            &[d, c.num_channels, patch, patch],
+            Init::Uniform { fan_in: patch_in },
+        );
+        let mut t = vec![0.0f32; w.len()];
+        for o in 0..d {
+            for i in 0..patch_in {
+                t[i * d + o] = w[o * patch_in + i];
+            }
+        }
+        let patch_embedding = Linear {
+            weight: burn::module::Param::from_tensor(Tensor::from_data(TensorData::new(t, [patch_in, d]), p.device())),
+            bias: None,
+        };
+        let position_embedding =
+            p.param("vision_model.embeddings.position_embedding.weight", [tokens, d], Init::Uniform { fan_in: d });
+        let eps = c.layer_norm_eps;
+        let pre_layrnorm = LayerNorm::load(p, "vision_model.pre_layrnorm", d, eps);
+        let layers = (0..c.num_hidden_layers)
+            .map(|l| {
+                let k = format!("vision_model.encoder.layers.{l}");
+                EncoderLayer {
+                    layer_norm1: LayerNorm::load(p, &format!("{k}.layer_norm1"), d, eps),
+                    q_proj: Linear::load(p, &format!("{k}.self_attn.q_proj"), d, d, true),
+                    k_proj: Linear::load(p, &format!("{k}.self_attn.k_proj"), d, d, true),
+                    v_proj: Linear::load(p, &format!("{k}.self_attn.v_proj"), d, d, true),
+                    out_proj: Linear::load(p, &format!("{k}.self_attn.out_proj"), d, d, true),
+                    layer_norm2: LayerNorm::load(p, &format!("{k}.layer_norm2"), d, eps),
+                    fc1: Linear::load(p, &format!("{k}.mlp.fc1"), d, c.intermediate_size, true),
+                    fc2: Linear::load(p, &format!("{k}.mlp.fc2"), c.intermediate_size, d, true),
+                }
+            })
+            .collect();
+        let post_layernorm = LayerNorm::load(p, "vision_model.post_layernorm", d, eps);
+        let visual_projection = Linear::load(p, "visual_projection", d, c.projection_dim, false);
+        Self {
+            class_embedding,
+            patch_embedding,
+            position_embedding,
+            pre_layrnorm,
+            layers,
+            post_layernorm,
+            visual_projection,
+            config: c.clone(),
+        }
+    }
+
+    /// Image embeddings `[n, projection_dim]` of normalised pixels `[n, 3, S, S]`
+    /// (S = `image_size`).
+    pub fn image_embeds(&self, pixels: Tensor<4>) -> Result<Tensor<2>, Error> {
+        let c = &self.config;
+        let [n, ch, h, w] = pixels.dims();
+        if ch != c.num_channels || h != c.image_size || w != c.image_size {
+            return Err(Error::invalid(
+                "pixels",
+                format!("[n, {}, {}, {}] (found {:?})", c.num_channels, c.image_size, c.image_size, pixels.dims()),
+            ));
+        }
+        let (p, g, d) = (c.patch_size, c.patches_per_side(), c.hidden_size);
+        // Non-overlapping patches → tokens [n, g·g, c·p·p] (channel-major like the conv weight).
+        let patches: Tensor<6> = pixels.reshape([n, ch, g, p, g, p]);
+        let patches = patches.permute([0, 2, 4, 1, 3, 5]).reshape([n, g * g, ch * p * p]);
+        let tokens = self.patch_embedding.forward(patches);
+        let class = self.class_embedding.val().reshape([1, 1, d]).expand([n, 1, d]);
+        let x = Tensor::cat(vec![class, tokens], 1) + self.position_embedding.val().unsqueeze::<3>();
+        let mut x = self.pre_layrnorm.forward(x);
+        for layer in &self.layers {
+            let h = layer.layer_norm1.forward(x.clone());
+            let attn = multi_head_attention(
+                layer.q_proj.forward(h.clone()),
+                layer.k_proj.forward(h.clone()),
+                layer.v_proj.forward(h),
+                c.num_attention_heads,
+            );
+            x = x + layer.out_proj.forward(attn);
+            let h = layer.fc1.forward(layer.layer_norm2.forward(x.clone()));
+            let h = if c.hidden_act == "quick_gelu" { h.clone() * sigmoid(h * 1.702) } else { gelu(h) };
+            x = x + layer.fc2.forward(h);
+        }
+        let pooled = x.slice([0..n, 0..1, 0..d]).reshape([n, d]);
+        Ok(self.visual_projection.forward(self.post_layernorm.forward(pooled)))
+    }
+}
+
+/// `CLIPImageProcessor`: resize the shorter side to `size` (bicubic, antialiased like PIL),
+/// centre-crop `size²`, scale to `[0, 1]` and normalise with [`CLIP_MEAN`] / [`CLIP_STD`].
+///
+/// `rgb` is `[height][width][3]` row-major with values in `[0, 255]` (8-bit sample values,
+/// as f32). Returns `[3, size, size]` channel-major.
+pub fn preprocess(rgb: &[f32], width: usize, height: usize, size: usize) -> Result<Vec<f32>, Error> {
+    if width == 0 || height == 0 || rgb.len() != width * height * 3 {
+        return Err(Error::invalid(
+            "image",
+            format!("{width}x{height}x3 = {} values (found {})", width * height * 3, rgb.len()),
+        ));
+    }
+    if size == 0 {
+        return Err(Error::invalid("size", "at least 1"));
+    }
+    // transformers: the shorter side becomes `size`, the other int(size * long / short).
+    let (new_w, new_h) = if width <= height {
+        (size, (size as f64 * height as f64 / width as f64) as usize)
+    } else {
+        ((size as f64 * width as f64 / height as f64) as usize, size)
+    };
+    let resized = resize_bicubic(rgb, width, height, new_w, new_h);
+    let top = (new_h - size) / 2;
+    let left = (new_w - size) / 2;
+    let mut out = vec![0.0f32; 3 * size * size];
+    for ch in 0..3 {
+        for y in 0..size {
+            for x in 0..size {
+                let v = resized[((top + y) * new_w + left + x) * 3 + ch] / 255.0;
+                out[(ch * size + y) * size + x] = (v - CLIP_MEAN[ch]) / CLIP_STD[ch];
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Keys' bicubic kernel with a = -0.5 (PIL's `BICUBIC`).
+fn bicubic(x: f64) -> f64 {
+    let a = -0.5;
+    let x = x.abs();
+    if x < 1.0 {
+        ((a + 2.0) * x - (a + 3.0)) * x * x + 1.0
+    } else if x < 2.0 {
+        (((x - 5.0) * x + 8.0) * x - 4.0) * a
+    } else {
+        0.0
+    }
+}
+
+/// Separable resampling weights of PIL's `ImagingResample` (support scaled when shrinking).
+fn resample_weights(src: usize, dst: usize) -> Vec<(usize, Vec<f64>)> {
+    let scale = src as f64 / dst as f64;
+    let filter_scale = scale.max(1.0);
+    let support = 2.0 * filter_scale;
+    (0..dst)
+        .map(|i| {
+            let center = (i as f64 + 0.5) * scale;
+            let xmin = ((center - support + 0.5).floor().max(0.0)) as usize;
+            let xmax = ((center + support + 0.5).floor() as usize).min(src);
+            let mut w: Vec<f64> = (xmin..xmax).map(|x| bicubic((x as f64 - center + 0.5) / filter_scale)).collect();
+            let total: f64 = w.iter().sum();
+            if total != 0.0 {
+                w.iter_mut().for_each(|v| *v /= total);
+            }
+            (xmin, w)
+        })
+        .collect()
+}
+
+/// Bicubic resize of `[h][w][3]`, horizontal then vertical pass, each rounded and clamped to
+/// `[0, 255]` as PIL does on 8-bit images.
+fn resize_bicubic(rgb: &[f32], w: usize, h: usize, new_w: usize, new_h: usize) -> Vec<f32> {
+    let round = |v: f64| v.round().clamp(0.0, 255.0) as f32;
+    let horizontal = resample_weights(w, new_w);
+    let mut tmp = vec![0.0f32; h * new_w * 3];
+    for y in 0..h {
+        for (x, (start, weights)) in horizontal.iter().enumerate() {
+            for ch in 0..3 {
+                let v: f64 =
+                    weights.iter().enumerate().map(|(k, wt)| wt * rgb[(y * w + start + k) * 3 + ch] as f64).sum();
+                tmp[(y * new_w + x) * 3 + ch] = round(v);
+            }
+        }
+    }
+    let vertical = resample_weights(h, new_h);
+    let mut out = vec![0.0f32; new_h * new_w * 3];
+    for (y, (start, weights)) in vertical.iter().enumerate() {
+        for x in 0..new_w {
+            for ch in 0..3 {
+                let v: f64 =
+                    weights.iter().enumerate().map(|(k, wt)| wt * tmp[((start + k) * new_w + x) * 3 + ch] as f64).sum();
+                out[(y * new_w + x) * 3 + ch] = round(v);
+            }
+        }
+    }
+    out
+}

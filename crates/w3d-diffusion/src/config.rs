@@ -1,0 +1,667 @@
+//! Model configurations that deserialize the diffusers / transformers `config.json` files as
+//! they are shipped in a checkpoint directory (`unet/`, `vae/`, `image_encoder/`, `scheduler/`).
+//!
+//! Fields a file omits take the default value of the Python class constructor (that is what
+//! diffusers does too). Values this implementation does not support are rejected by
+//! `validate` with an error naming the field, never silently ignored.
+
+use std::path::Path;
+
+use serde::Deserialize;
+use serde::de::DeserializeOwned;
+use w3d_core::Error;
+
+/// Reads and parses a JSON config file.
+fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T, Error> {
+    let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    serde_json::from_str(&text).map_err(|e| Error::format(path, "json", format!("a valid config ({e})")))
+}
+
+/// A value that is either one number for every block or one number per block (diffusers
+/// accepts both for `attention_head_dim`, `num_attention_heads`, `transformer_layers_per_block`).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(untagged)]
+pub enum PerBlock {
+    /// The same value for every block.
+    All(usize),
+    /// One value per down block (up blocks use the list reversed).
+    Each(Vec<usize>),
+}
+
+impl PerBlock {
+    /// The value for block `index` of `count` blocks.
+    fn get(&self, field: &str, index: usize, count: usize) -> Result<usize, Error> {
+        match self {
+            PerBlock::All(v) => Ok(*v),
+            PerBlock::Each(v) if v.len() == count => Ok(v[index]),
+            PerBlock::Each(v) => Err(Error::invalid(field, format!("{count} values, found {}", v.len()))),
+        }
+    }
+}
+
+fn default_true() -> bool {
+    true
+}
+fn default_silu() -> String {
+    "silu".into()
+}
+fn default_groups() -> usize {
+    32
+}
+fn default_in_out4() -> usize {
+    4
+}
+fn default_layers() -> usize {
+    2
+}
+fn default_one() -> f64 {
+    1.0
+}
+fn default_one_usize() -> usize {
+    1
+}
+fn default_eps5() -> f64 {
+    1e-5
+}
+
+/// `UNet2DConditionModel` config (diffusers `unet/config.json`). Channel counts are feature
+/// channels; `sample_size` is the latent side in pixels (image side / 8).
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct UNetConfig {
+    /// Latent channels in (4 for SD, 8 for Wonder3D: noisy latent + condition latent).
+    #[serde(default = "default_in_out4")]
+    pub in_channels: usize,
+    /// Latent channels out (the predicted noise / v).
+    #[serde(default = "default_in_out4")]
+    pub out_channels: usize,
+    /// Latent side the model was trained at (informational).
+    #[serde(default)]
+    pub sample_size: Option<usize>,
+    /// Whether the input is mapped `x -> 2x - 1` first.
+    #[serde(default)]
+    pub center_input_sample: bool,
+    /// Sinusoidal timestep embedding puts cos before sin.
+    #[serde(default = "default_true")]
+    pub flip_sin_to_cos: bool,
+    /// `downscale_freq_shift` of the timestep embedding.
+    #[serde(default)]
+    pub freq_shift: f64,
+    /// Down block kinds: `CrossAttnDownBlock2D` or `DownBlock2D`.
+    pub down_block_types: Vec<String>,
+    /// Mid block kind: `UNetMidBlock2DCrossAttn`.
+    #[serde(default)]
+    pub mid_block_type: Option<String>,
+    /// Up block kinds: `CrossAttnUpBlock2D` or `UpBlock2D`.
+    pub up_block_types: Vec<String>,
+    /// Output channels of each down level.
+    pub block_out_channels: Vec<usize>,
+    /// ResNet layers per down block (up blocks have one more).
+    #[serde(default = "default_layers")]
+    pub layers_per_block: usize,
+    /// Padding of the stride-2 down-sampling convolutions.
+    #[serde(default = "default_one_usize")]
+    pub downsample_padding: usize,
+    /// Output scale of the mid block's ResNets.
+    #[serde(default = "default_one")]
+    pub mid_block_scale_factor: f64,
+    /// Activation (`silu`).
+    #[serde(default = "default_silu")]
+    pub act_fn: String,
+    /// GroupNorm groups.
+    #[serde(default = "default_groups")]
+    pub norm_num_groups: usize,
+    /// GroupNorm epsilon of the ResNets and the output norm.
+    #[serde(default = "default_eps5")]
+    pub norm_eps: f64,
+    /// Width of the conditioning tokens (768 for the CLIP image embedding).
+    pub cross_attention_dim: usize,
+    /// Transformer layers per attention block.
+    #[serde(default)]
+    pub transformer_layers_per_block: Option<PerBlock>,
+    /// diffusers quirk: when `num_attention_heads` is absent this is the number of **heads**.
+    #[serde(default)]
+    pub attention_head_dim: Option<PerBlock>,
+    /// Number of attention heads (overrides `attention_head_dim` when present).
+    #[serde(default)]
+    pub num_attention_heads: Option<PerBlock>,
+    /// Linear (instead of 1x1 conv) transformer in/out projections.
+    #[serde(default)]
+    pub use_linear_projection: bool,
+    /// Class embedding kind: absent or `projection`.
+    #[serde(default)]
+    pub class_embed_type: Option<String>,
+    /// Input width of the `projection` class embedding.
+    #[serde(default)]
+    pub projection_class_embeddings_input_dim: Option<usize>,
+    /// Concatenate instead of add the class embedding (unsupported: must be false).
+    #[serde(default)]
+    pub class_embeddings_concat: bool,
+    /// `default` only.
+    #[serde(default)]
+    pub resnet_time_scale_shift: Option<String>,
+    /// `positional` only.
+    #[serde(default)]
+    pub time_embedding_type: Option<String>,
+    /// Unsupported when true.
+    #[serde(default)]
+    pub dual_cross_attention: bool,
+    /// Unsupported when true.
+    #[serde(default)]
+    pub only_cross_attention: Option<serde_json::Value>,
+    /// Unsupported when set.
+    #[serde(default)]
+    pub addition_embed_type: Option<String>,
+    /// Unsupported when set.
+    #[serde(default)]
+    pub encoder_hid_dim: Option<usize>,
+    /// Unsupported when set.
+    #[serde(default)]
+    pub time_cond_proj_dim: Option<usize>,
+    /// Kernel of `conv_in` (3).
+    #[serde(default)]
+    pub conv_in_kernel: Option<usize>,
+    /// Kernel of `conv_out` (3).
+    #[serde(default)]
+    pub conv_out_kernel: Option<usize>,
+    /// Only `false`/absent supported (f32 attention is already full precision).
+    #[serde(default)]
+    pub upcast_attention: Option<bool>,
+    /// Options this implementation only supports at their diffusers default (`null`, `false`,
+    /// `1.0` or `"default"`): `time_embedding_dim`, `time_embedding_act_fn`, `timestep_post_act`,
+    /// `num_class_embeds`, `attention_type`, `resnet_skip_time_act`, `resnet_out_scale_factor`,
+    /// `cross_attention_norm`, `mid_block_only_cross_attention`,
+    /// `reverse_transformer_layers_per_block`.
+    #[serde(flatten)]
+    pub other: serde_json::Map<String, serde_json::Value>,
+}
+
+/// Options of `UNet2DConditionModel` that must keep their default value, with the accepted values.
+const UNET_DEFAULT_ONLY: &[(&str, &[&str])] = &[
+    ("time_embedding_dim", &["null"]),
+    ("time_embedding_act_fn", &["null"]),
+    ("timestep_post_act", &["null"]),
+    ("num_class_embeds", &["null"]),
+    ("attention_type", &["\"default\""]),
+    ("resnet_skip_time_act", &["false"]),
+    ("resnet_out_scale_factor", &["1.0", "1"]),
+    ("cross_attention_norm", &["null"]),
+    ("mid_block_only_cross_attention", &["null", "false"]),
+    ("reverse_transformer_layers_per_block", &["null"]),
+];
+
+fn unsupported(field: &str, value: impl std::fmt::Debug, expected: &str) -> Error {
+    Error::invalid(field, format!("{expected} (found {value:?})"))
+}
+
+impl UNetConfig {
+    /// Parses `unet/config.json`.
+    pub fn from_file(path: impl AsRef<Path>) -> Result<Self, Error> {
+        let path = path.as_ref();
+        let config: Self = read_json(path)?;
+        config.validate().map_err(|e| e.in_file(path))?;
+        Ok(config)
+    }
+
+    /// Checks that every field holds a supported value.
+    pub fn validate(&self) -> Result<(), Error> {
+        let n = self.block_out_channels.len();
+        if n == 0 || self.down_block_types.len() != n || self.up_block_types.len() != n {
+            return Err(Error::invalid(
+                "down_block_types/up_block_types",
+                format!("one entry per block_out_channels entry ({n})"),
+            ));
+        }
+        for (i, t) in self.down_block_types.iter().enumerate() {
+            if t != "CrossAttnDownBlock2D" && t != "DownBlock2D" {
+                return Err(unsupported(&format!("down_block_types[{i}]"), t, "CrossAttnDownBlock2D or DownBlock2D"));
+            }
+        }
+        for (i, t) in self.up_block_types.iter().enumerate() {
+            if t != "CrossAttnUpBlock2D" && t != "UpBlock2D" {
+                return Err(unsupported(&format!("up_block_types[{i}]"), t, "CrossAttnUpBlock2D or UpBlock2D"));
+            }
+        }
+        if let Some(m) = &self.mid_block_type
+            && m != "UNetMidBlock2DCrossAttn"
+        {
+            return Err(unsupported("mid_block_type", m, "UNetMidBlock2DCrossAttn"));
+        }
+        if self.act_fn != "silu" {
+            return Err(unsupported("act_fn", &self.act_fn, "silu"));
+        }
+        if self.block_out_channels.iter().any(|c| !c.is_multiple_of(self.norm_num_groups)) {
+            return Err(Error::invalid("block_out_channels", "multiples of norm_num_groups"));
+        }
+        match (self.class_embed_type.as_deref(), self.projection_class_embeddings_input_dim) {
+            (None, _) | (Some("projection"), Some(_)) => {}
+            (Some("projection"), None) => {
+                return Err(Error::invalid(
+                    "projection_class_embeddings_input_dim",
+                    "a value for class_embed_type projection",
+                ));
+            }
+            (Some(other), _) => return Err(unsupported("class_embed_type", other, "absent or projection")),
+        }
+        if self.class_embeddings_concat {
+            return Err(unsupported("class_embeddings_concat", true, "false"));
+        }
+        if let Some(s) = &self.resnet_time_scale_shift
+            && s != "default"
+        {
+            return Err(unsupported("resnet_time_scale_shift", s, "default"));
+        }
+        if let Some(s) = &self.time_embedding_type
+            && s != "positional"
+        {
+            return Err(unsupported("time_embedding_type", s, "positional"));
+        }
+        if self.dual_cross_attention {
+            return Err(unsupported("dual_cross_attention", true, "false"));
+        }
+        match &self.only_cross_attention {
+            None | Some(serde_json::Value::Bool(false)) => {}
+            Some(v) => return Err(unsupported("only_cross_attention", v, "false")),
+        }
+        if let Some(v) = &self.addition_embed_type {
+            return Err(unsupported("addition_embed_type", v, "absent"));
+        }
+        if let Some(v) = self.encoder_hid_dim {
+            return Err(unsupported("encoder_hid_dim", v, "absent"));
+        }
+        if let Some(v) = self.time_cond_proj_dim {
+            return Err(unsupported("time_cond_proj_dim", v, "absent"));
+        }
+        for (field, k) in [("conv_in_kernel", self.conv_in_kernel), ("conv_out_kernel", self.conv_out_kernel)] {
+            if let Some(k) = k
+                && k != 3
+            {
+                return Err(unsupported(field, k, "3"));
+            }
+        }
+        for (field, accepted) in UNET_DEFAULT_ONLY {
+            if let Some(v) = self.other.get(*field)
+                && !accepted.contains(&v.to_string().as_str())
+            {
+                return Err(unsupported(field, v, &accepted.join(" or ")));
+            }
+        }
+        for b in 0..n {
+            let heads = self.heads(b)?;
+            if heads == 0 || !self.block_out_channels[b].is_multiple_of(heads) {
+                return Err(Error::invalid(
+                    "attention_head_dim",
+                    format!("a head count dividing block_out_channels[{b}] = {}", self.block_out_channels[b]),
+                ));
+            }
+            self.transformer_layers(b)?;
+        }
+        Ok(())
+    }
+
+    /// Attention heads of down block `index` (diffusers: `num_attention_heads or attention_head_dim`).
+    pub fn heads(&self, index: usize) -> Result<usize, Error> {
+        let n = self.block_out_channels.len();
+        match (&self.num_attention_heads, &self.attention_head_dim) {
+            (Some(h), _) => h.get("num_attention_heads", index, n),
+            (None, Some(h)) => h.get("attention_head_dim", index, n),
+            (None, None) => Ok(8),
+        }
+    }
+
+    /// Transformer layers of down block `index`.
+    pub fn transformer_layers(&self, index: usize) -> Result<usize, Error> {
+        match &self.transformer_layers_per_block {
+            None => Ok(1),
+            Some(t) => t.get("transformer_layers_per_block", index, self.block_out_channels.len()),
+        }
+    }
+
+    /// Width of the time embedding (4 × the first block's channels).
+    pub fn time_embed_dim(&self) -> usize {
+        self.block_out_channels[0] * 4
+    }
+}
+
+fn default_scaling() -> f64 {
+    0.18215
+}
+fn default_vae_channels() -> Vec<usize> {
+    vec![64]
+}
+fn default_vae_down() -> Vec<String> {
+    vec!["DownEncoderBlock2D".into()]
+}
+fn default_vae_up() -> Vec<String> {
+    vec!["UpDecoderBlock2D".into()]
+}
+fn default_three() -> usize {
+    3
+}
+
+/// `AutoencoderKL` config (diffusers `vae/config.json`). Images are `[-1, 1]`, latents are
+/// `latent_channels` wide and `2^(levels-1)` times smaller.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct VaeConfig {
+    /// Image channels in (3).
+    #[serde(default = "default_three")]
+    pub in_channels: usize,
+    /// Image channels out (3).
+    #[serde(default = "default_three")]
+    pub out_channels: usize,
+    /// Encoder block kinds: `DownEncoderBlock2D`.
+    #[serde(default = "default_vae_down")]
+    pub down_block_types: Vec<String>,
+    /// Decoder block kinds: `UpDecoderBlock2D`.
+    #[serde(default = "default_vae_up")]
+    pub up_block_types: Vec<String>,
+    /// Channels of each encoder level.
+    #[serde(default = "default_vae_channels")]
+    pub block_out_channels: Vec<usize>,
+    /// ResNets per encoder block (decoder blocks have one more).
+    #[serde(default = "default_one_usize")]
+    pub layers_per_block: usize,
+    /// Activation (`silu`).
+    #[serde(default = "default_silu")]
+    pub act_fn: String,
+    /// Latent channels (4).
+    #[serde(default = "default_in_out4")]
+    pub latent_channels: usize,
+    /// GroupNorm groups.
+    #[serde(default = "default_groups")]
+    pub norm_num_groups: usize,
+    /// Image side the model was trained at (informational).
+    #[serde(default)]
+    pub sample_size: Option<usize>,
+    /// Latent scaling factor: the diffusion model sees `mean * scaling_factor`.
+    #[serde(default = "default_scaling")]
+    pub scaling_factor: f64,
+    /// Whether `quant_conv` / `post_quant_conv` exist.
+    #[serde(default = "default_true")]
+    pub use_quant_conv: bool,
+    /// Whether `post_quant_conv` exists.
+    #[serde(default = "default_true")]
+    pub use_post_quant_conv: bool,
+    /// Must be true (absent) — the mid block attention.
+    #[serde(default = "default_true")]
+    pub mid_block_add_attention: bool,
+    /// Unsupported when set.
+    #[serde(default)]
+    pub shift_factor: Option<f64>,
+}
+
+impl VaeConfig {
+    /// Parses `vae/config.json`.
+    pub fn from_file(path: impl AsRef<Path>) -> Result<Self, Error> {
+        let path = path.as_ref();
+        let config: Self = read_json(path)?;
+        config.validate().map_err(|e| e.in_file(path))?;
+        Ok(config)
+    }
+
+    /// Checks that every field holds a supported value.
+    pub fn validate(&self) -> Result<(), Error> {
+        let n = self.block_out_channels.len();
+        if n == 0 || self.down_block_types.len() != n || self.up_block_types.len() != n {
+            return Err(Error::invalid("down_block_types/up_block_types", format!("{n} entries each")));
+        }
+        if let Some((i, t)) = self.down_block_types.iter().enumerate().find(|(_, t)| *t != "DownEncoderBlock2D") {
+            return Err(unsupported(&format!("down_block_types[{i}]"), t, "DownEncoderBlock2D"));
+        }
+        if let Some((i, t)) = self.up_block_types.iter().enumerate().find(|(_, t)| *t != "UpDecoderBlock2D") {
+            return Err(unsupported(&format!("up_block_types[{i}]"), t, "UpDecoderBlock2D"));
+        }
+        if self.act_fn != "silu" {
+            return Err(unsupported("act_fn", &self.act_fn, "silu"));
+        }
+        if self.block_out_channels.iter().any(|c| !c.is_multiple_of(self.norm_num_groups)) {
+            return Err(Error::invalid("block_out_channels", "multiples of norm_num_groups"));
+        }
+        if !self.use_quant_conv || !self.use_post_quant_conv || !self.mid_block_add_attention {
+            return Err(Error::invalid("use_quant_conv/use_post_quant_conv/mid_block_add_attention", "true"));
+        }
+        if let Some(s) = self.shift_factor {
+            return Err(unsupported("shift_factor", s, "absent"));
+        }
+        Ok(())
+    }
+
+    /// Ratio of image side to latent side.
+    pub fn downscale(&self) -> usize {
+        1 << (self.block_out_channels.len() - 1)
+    }
+}
+
+fn default_clip_hidden() -> usize {
+    768
+}
+fn default_clip_inter() -> usize {
+    3072
+}
+fn default_clip_proj() -> usize {
+    512
+}
+fn default_clip_layers() -> usize {
+    12
+}
+fn default_clip_image() -> usize {
+    224
+}
+fn default_clip_patch() -> usize {
+    32
+}
+fn default_quick_gelu() -> String {
+    "quick_gelu".into()
+}
+
+/// `CLIPVisionConfig` (transformers `image_encoder/config.json` of a
+/// `CLIPVisionModelWithProjection`). Images are `image_size²` pixels, cut into `patch_size²`
+/// patches.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct ClipVisionConfig {
+    /// Token width.
+    #[serde(default = "default_clip_hidden")]
+    pub hidden_size: usize,
+    /// MLP hidden width.
+    #[serde(default = "default_clip_inter")]
+    pub intermediate_size: usize,
+    /// Width of the projected image embedding.
+    #[serde(default = "default_clip_proj")]
+    pub projection_dim: usize,
+    /// Encoder layers.
+    #[serde(default = "default_clip_layers")]
+    pub num_hidden_layers: usize,
+    /// Attention heads.
+    #[serde(default = "default_clip_layers")]
+    pub num_attention_heads: usize,
+    /// Image channels (3).
+    #[serde(default = "default_three")]
+    pub num_channels: usize,
+    /// Input side in pixels.
+    #[serde(default = "default_clip_image")]
+    pub image_size: usize,
+    /// Patch side in pixels.
+    #[serde(default = "default_clip_patch")]
+    pub patch_size: usize,
+    /// `quick_gelu` or `gelu`.
+    #[serde(default = "default_quick_gelu")]
+    pub hidden_act: String,
+    /// LayerNorm epsilon.
+    #[serde(default = "default_eps5")]
+    pub layer_norm_eps: f64,
+}
+
+impl ClipVisionConfig {
+    /// Parses `image_encoder/config.json`: either a vision config or a full `CLIPConfig`
+    /// whose `vision_config` (and top-level `projection_dim`) is used.
+    pub fn from_file(path: impl AsRef<Path>) -> Result<Self, Error> {
+        let path = path.as_ref();
+        let value: serde_json::Value = read_json(path)?;
+        let config = Self::from_value(value).map_err(|e| e.in_file(path))?;
+        Ok(config)
+    }
+
+    /// Parses a JSON value (see [`ClipVisionConfig::from_file`]).
+    pub fn from_value(value: serde_json::Value) -> Result<Self, Error> {
+        let parse = |v: serde_json::Value| {
+            serde_json::from_value::<Self>(v)
+                .map_err(|e| Error::invalid("config", format!("a CLIP vision config ({e})")))
+        };
+        let config = match value.get("vision_config") {
+            Some(vision) => {
+                let mut vision = vision.clone();
+                if let (Some(p), Some(obj)) = (value.get("projection_dim"), vision.as_object_mut()) {
+                    obj.entry("projection_dim").or_insert(p.clone());
+                }
+                parse(vision)?
+            }
+            None => parse(value)?,
+        };
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// Checks that every field holds a supported value.
+    pub fn validate(&self) -> Result<(), Error> {
+        if self.hidden_act != "quick_gelu" && self.hidden_act != "gelu" {
+            return Err(unsupported("hidden_act", &self.hidden_act, "quick_gelu or gelu"));
+        }
+        if self.num_attention_heads == 0 || !self.hidden_size.is_multiple_of(self.num_attention_heads) {
+            return Err(Error::invalid("num_attention_heads", "a divisor of hidden_size"));
+        }
+        if self.patch_size == 0 || !self.image_size.is_multiple_of(self.patch_size) {
+            return Err(Error::invalid("patch_size", "a divisor of image_size"));
+        }
+        Ok(())
+    }
+
+    /// Patches per side.
+    pub fn patches_per_side(&self) -> usize {
+        self.image_size / self.patch_size
+    }
+}
+
+fn default_train_steps() -> usize {
+    1000
+}
+fn default_beta_start() -> f64 {
+    0.0001
+}
+fn default_beta_end() -> f64 {
+    0.02
+}
+fn default_linear() -> String {
+    "linear".into()
+}
+fn default_epsilon() -> String {
+    "epsilon".into()
+}
+fn default_leading() -> String {
+    "leading".into()
+}
+
+/// `DDIMScheduler` / `DDIMInverseScheduler` config (diffusers `scheduler/scheduler_config.json`).
+/// Timesteps are integer training steps in `[0, num_train_timesteps)`.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+pub struct SchedulerConfig {
+    /// Training timesteps T.
+    #[serde(default = "default_train_steps")]
+    pub num_train_timesteps: usize,
+    /// First beta.
+    #[serde(default = "default_beta_start")]
+    pub beta_start: f64,
+    /// Last beta.
+    #[serde(default = "default_beta_end")]
+    pub beta_end: f64,
+    /// `linear`, `scaled_linear` or `squaredcos_cap_v2`.
+    #[serde(default = "default_linear")]
+    pub beta_schedule: String,
+    /// Explicit betas (overrides the schedule).
+    #[serde(default)]
+    pub trained_betas: Option<Vec<f64>>,
+    /// Clamp the predicted clean sample to `±clip_sample_range`.
+    #[serde(default = "default_true")]
+    pub clip_sample: bool,
+    /// Clamp range of `clip_sample`.
+    #[serde(default = "default_one")]
+    pub clip_sample_range: f64,
+    /// DDIM: ᾱ of the step before t = 0 is 1 (else ᾱ₀). Inverse: ᾱ before the first step.
+    #[serde(default = "default_true")]
+    pub set_alpha_to_one: bool,
+    /// Added to every inference timestep (`leading` spacing).
+    #[serde(default)]
+    pub steps_offset: usize,
+    /// `epsilon`, `sample` or `v_prediction`.
+    #[serde(default = "default_epsilon")]
+    pub prediction_type: String,
+    /// Dynamic thresholding (unsupported when true).
+    #[serde(default)]
+    pub thresholding: bool,
+    /// `leading`, `trailing` or `linspace`.
+    #[serde(default = "default_leading")]
+    pub timestep_spacing: String,
+    /// Rescale betas to zero terminal SNR.
+    #[serde(default)]
+    pub rescale_betas_zero_snr: bool,
+}
+
+impl Default for SchedulerConfig {
+    /// The diffusers `DDIMScheduler()` constructor defaults.
+    fn default() -> Self {
+        serde_json::from_str("{}").expect("all fields have defaults")
+    }
+}
+
+impl SchedulerConfig {
+    /// Parses `scheduler/scheduler_config.json`.
+    pub fn from_file(path: impl AsRef<Path>) -> Result<Self, Error> {
+        let path = path.as_ref();
+        let config: Self = read_json(path)?;
+        config.validate().map_err(|e| e.in_file(path))?;
+        Ok(config)
+    }
+
+    /// The Stable Diffusion / Wonder3D scheduler: scaled-linear betas 0.00085 → 0.012,
+    /// `set_alpha_to_one = false`, `steps_offset = 1`, leading spacing, no clipping.
+    pub fn stable_diffusion() -> Self {
+        Self {
+            beta_start: 0.00085,
+            beta_end: 0.012,
+            beta_schedule: "scaled_linear".into(),
+            clip_sample: false,
+            set_alpha_to_one: false,
+            steps_offset: 1,
+            ..Self::default()
+        }
+    }
+
+    /// Checks that every field holds a supported value.
+    pub fn validate(&self) -> Result<(), Error> {
+        if self.num_train_timesteps == 0 {
+            return Err(Error::invalid("num_train_timesteps", "at least 1"));
+        }
+        if self.trained_betas.is_none()
+            && !matches!(self.beta_schedule.as_str(), "linear" | "scaled_linear" | "squaredcos_cap_v2")
+        {
+            return Err(unsupported(
+                "beta_schedule",
+                &self.beta_schedule,
+                "linear, scaled_linear or squaredcos_cap_v2",
+            ));
+        }
+        if let Some(b) = &self.trained_betas
+            && b.len() != self.num_train_timesteps
+        {
+            return Err(Error::invalid("trained_betas", format!("{} values", self.num_train_timesteps)));
+        }
+        if !matches!(self.prediction_type.as_str(), "epsilon" | "sample" | "v_prediction") {
+            return Err(unsupported("prediction_type", &self.prediction_type, "epsilon, sample or v_prediction"));
+        }
+        if !matches!(self.timestep_spacing.as_str(), "leading" | "trailing" | "linspace") {
+            return Err(unsupported("timestep_spacing", &self.timestep_spacing, "leading, trailing or linspace"));
+        }
+        if self.thresholding {
+            return Err(unsupported("thresholding", true, "false"));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,68 @@
+//! Diffusion models of wonder3d-rs on Burn 0.22: the Stable-Diffusion-image-variations UNet
+//! (`UNet2DConditionModel`, with the projection class embedding Wonder3D's switchers use), the
+//! `AutoencoderKL` VAE, the CLIP vision encoder with projection and its preprocessing, DDIM
+//! sampling with classifier-free guidance and DDIM inversion (exactly as diffusers), and
+//! streaming `.safetensors` loading with the diffusers / transformers key names.
+//!
+//! Configs deserialize the `config.json` files of a diffusers checkpoint directory as they are;
+//! weights load from f32, f16 or bf16 safetensors and every missing, unexpected or misshaped key
+//! is reported by name. Models run on any Burn device: [`default_device`] is the faster CPU
+//! backend (`flex`); `Device::ndarray()` is the product's CPU test backend; the `wgpu` feature
+//! adds the GPU backend. Convolutions run as im2col + GEMM (see [`nn::ConvAlgorithm`]).
+//!
+//! ```
+//! use w3d_diffusion::{DdimScheduler, SchedulerConfig, classifier_free_guidance, gaussian_noise};
+//!
+//! let device = w3d_diffusion::default_device();
+//! let scheduler = DdimScheduler::new(SchedulerConfig::stable_diffusion(), 10).unwrap();
+//! assert_eq!(scheduler.timesteps()[..3], [901, 801, 701]);
+//! let mut latent = gaussian_noise([1, 4, 8, 8], 7, &device);
+//! for &t in scheduler.timesteps() {
+//!     // A stand-in for the UNet: predicts the sample itself as noise, with and without condition.
+//!     let (uncond, cond) = (latent.clone() * 0.9, latent.clone());
+//!     let eps = classifier_free_guidance(uncond, cond, 2.0);
+//!     latent = scheduler.step(eps, t, latent, 0.0, None).unwrap();
+//! }
+//! assert_eq!(latent.dims(), [1, 4, 8, 8]);
+//! ```
+
+pub mod blocks;
+pub mod clip;
+pub mod config;
+pub mod nn;
+pub mod scheduler;
+pub mod unet;
+pub mod vae;
+pub mod weights;
+
+pub use burn::tensor::{Device, Tensor, TensorData};
+pub use clip::{CLIP_MEAN, CLIP_STD, ClipVision, preprocess as clip_preprocess};
+pub use config::{ClipVisionConfig, PerBlock, SchedulerConfig, UNetConfig, VaeConfig};
+pub use scheduler::{
+    DdimInverseScheduler, DdimScheduler, Prediction, classifier_free_guidance, ddim_invert, ddim_sample, gaussian_noise,
+};
+pub use unet::UNet;
+pub use vae::Vae;
+pub use weights::SafetensorsFile;
+
+/// The default CPU device: Burn's `flex` backend (gemm-crate matmul, rayon threads), measured
+/// faster than `ndarray` on this crate's models (see `docs/benchmarks.md`).
+pub fn default_device() -> Device {
+    Device::flex()
+}
+
+/// A hardware GPU through wgpu (feature `wgpu`): `None` when no adapter exists or when the
+/// only one is a software (CPU) adapter such as Mesa llvmpipe, which is far slower than
+/// [`default_device`].
+#[cfg(feature = "wgpu")]
+pub fn gpu_device() -> Option<Device> {
+    let (device, setup) = Device::wgpu_options().init_with_setup().ok()?;
+    let kind = setup.adapter.get_info().device_type;
+    (kind != burn::tensor::wgpu::wgpu::DeviceType::Cpu).then_some(device)
+}
+
+/// The `ndarray` CPU backend (the product design's test backend; deprecated in Burn 0.22).
+#[allow(deprecated)]
+pub fn ndarray_device() -> Device {
+    Device::ndarray()
+}

@@ -1,0 +1,246 @@
+//! Building blocks shared by the UNet, the VAE and the CLIP encoder: linear layers, 2-D
+//! convolutions (im2col + GEMM), GroupNorm, LayerNorm and multi-head attention.
+//!
+//! Images are `[batch, channels, height, width]`; token sequences are `[batch, tokens, width]`.
+
+use burn::backend::DispatchDevice;
+use burn::module::{Module, Param};
+use burn::tensor::activation::silu;
+use burn::tensor::module::{attention, conv2d, layer_norm};
+use burn::tensor::ops::{AttentionModuleOptions, ConvOptions, PadMode};
+use burn::tensor::{Tensor, TensorData, s};
+
+use crate::weights::{Init, ParamSource};
+
+/// A fully connected layer `y = x·Wᵀ + b`; the weight is held transposed (`[in, out]`).
+#[derive(Module, Debug)]
+pub struct Linear {
+    /// Weight, `[in, out]` (the transpose of the PyTorch `[out, in]` layout).
+    pub weight: Param<Tensor<2>>,
+    /// Bias, `[out]`.
+    pub bias: Option<Param<Tensor<1>>>,
+}
+
+impl Linear {
+    pub(crate) fn load(p: &mut ParamSource, key: &str, d_in: usize, d_out: usize, bias: bool) -> Self {
+        let w = p.values(&format!("{key}.weight"), &[d_out, d_in], Init::Uniform { fan_in: d_in });
+        let mut t = vec![0.0f32; w.len()];
+        for o in 0..d_out {
+            for i in 0..d_in {
+                t[i * d_out + o] = w[o * d_in + i];
+            }
+        }
+        let weight = Param::from_tensor(Tensor::from_data(TensorData::new(t, [d_in, d_out]), p.device()));
+        let bias = bias.then(|| p.param(&format!("{key}.bias"), [d_out], Init::Uniform { fan_in: d_in }));
+        Self { weight, bias }
+    }
+
+    /// Applies the layer to the last dimension of `x`.
+    pub fn forward<const D: usize>(&self, x: Tensor<D>) -> Tensor<D> {
+        let dims = x.dims();
+        let [d_in, d_out] = self.weight.dims();
+        let rows = dims[..D - 1].iter().product();
+        let mut y = x.reshape([rows, d_in]).matmul(self.weight.val());
+        if let Some(b) = &self.bias {
+            y = y + b.val().unsqueeze::<2>();
+        }
+        let mut out = dims;
+        out[D - 1] = d_out;
+        y.reshape(out)
+    }
+}
+
+/// How a 2-D convolution is computed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum ConvAlgorithm {
+    /// Per backend, from per-layer timings of the UNet's shapes (`docs/benchmarks.md`): on
+    /// flex [`ConvAlgorithm::Im2col`] for stride-1 convolutions whose column buffer stays at
+    /// most [`IM2COL_MAX_FLOATS`] values and [`ConvAlgorithm::Direct`] otherwise; on ndarray
+    /// (whose own conv2d is several times slower) always im2col; on GPU backends the backend's
+    /// conv2d.
+    #[default]
+    Auto,
+    /// Patches gathered by slicing (im2col) and multiplied with one GEMM: 1.1-4.7x faster than
+    /// the backend kernel on CPU at the UNet's 4x4-16x16 levels, 1.6x slower at 32x32 with
+    /// 320+ channels (the column buffer outgrows the caches).
+    Im2col,
+    /// The backend's own `conv2d`.
+    Direct,
+}
+
+/// Largest im2col column buffer (`n · c · k² · h_out · w_out` values) [`ConvAlgorithm::Auto`]
+/// still uses im2col for.
+pub const IM2COL_MAX_FLOATS: usize = 4 << 20;
+
+/// A 2-D convolution with square kernel, stride and zero padding (PyTorch `nn.Conv2d`).
+#[derive(Module, Debug)]
+pub struct Conv2d {
+    /// Weight, `[out, in, k, k]`.
+    pub weight: Param<Tensor<4>>,
+    /// Bias, `[out]`.
+    pub bias: Option<Param<Tensor<1>>>,
+    /// Stride in pixels.
+    pub stride: usize,
+    /// Zero padding on each side in pixels.
+    pub padding: usize,
+}
+
+impl Conv2d {
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn load(
+        p: &mut ParamSource,
+        key: &str,
+        c_in: usize,
+        c_out: usize,
+        kernel: usize,
+        stride: usize,
+        padding: usize,
+        bias: bool,
+    ) -> Self {
+        let fan_in = c_in * kernel * kernel;
+        let weight = p.param(&format!("{key}.weight"), [c_out, c_in, kernel, kernel], Init::Uniform { fan_in });
+        let bias = bias.then(|| p.param(&format!("{key}.bias"), [c_out], Init::Uniform { fan_in }));
+        Self { weight, bias, stride, padding }
+    }
+
+    /// Applies the convolution with the default algorithm.
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        self.forward_with(x, ConvAlgorithm::default())
+    }
+
+    /// Applies the convolution with the given algorithm (both give the same result up to f32
+    /// rounding).
+    pub fn forward_with(&self, x: Tensor<4>, algorithm: ConvAlgorithm) -> Tensor<4> {
+        let bias = self.bias.as_ref().map(|b| b.val());
+        let algorithm = match algorithm {
+            ConvAlgorithm::Auto => {
+                let [n, c, h, w] = x.dims();
+                let [_, _, k, _] = self.weight.dims();
+                let (p, st) = (self.padding, self.stride);
+                let out = ((h + 2 * p).saturating_sub(k) / st + 1) * ((w + 2 * p).saturating_sub(k) / st + 1);
+                match x.device().inner().as_dispatch() {
+                    DispatchDevice::NdArray(_) => ConvAlgorithm::Im2col,
+                    DispatchDevice::Flex(_) if st == 1 && n * c * k * k * out <= IM2COL_MAX_FLOATS => {
+                        ConvAlgorithm::Im2col
+                    }
+                    _ => ConvAlgorithm::Direct,
+                }
+            }
+            other => other,
+        };
+        match algorithm {
+            ConvAlgorithm::Auto | ConvAlgorithm::Direct => {
+                let (s, p) = (self.stride, self.padding);
+                conv2d(x, self.weight.val(), bias, ConvOptions::new([s, s], [p, p], [1, 1], 1))
+            }
+            ConvAlgorithm::Im2col => im2col_conv2d(x, self.weight.val(), bias, self.stride, self.padding),
+        }
+    }
+}
+
+/// Convolution as im2col + one GEMM: `x [n, c, h, w]`, `weight [o, c, k, k]`.
+pub fn im2col_conv2d(
+    x: Tensor<4>,
+    weight: Tensor<4>,
+    bias: Option<Tensor<1>>,
+    stride: usize,
+    padding: usize,
+) -> Tensor<4> {
+    let [n, c, h, w] = x.dims();
+    let [o, _, k, _] = weight.dims();
+    let ho = (h + 2 * padding - k) / stride + 1;
+    let wo = (w + 2 * padding - k) / stride + 1;
+    let w2 = weight.reshape([1, o, c * k * k]);
+    let cols = if k == 1 && stride == 1 && padding == 0 {
+        x.reshape([n, c, h * w])
+    } else {
+        let xp = if padding > 0 { x.pad((padding, padding, padding, padding), PadMode::Constant(0.0)) } else { x };
+        let mut patches = Vec::with_capacity(k * k);
+        for ky in 0..k {
+            for kx in 0..k {
+                let (y1, x1) = (ky + stride * (ho - 1) + 1, kx + stride * (wo - 1) + 1);
+                let step = stride as isize;
+                patches.push(xp.clone().slice(s![.., .., ky..y1;step, kx..x1;step]));
+            }
+        }
+        let cols: Tensor<5> = Tensor::stack(patches, 2);
+        cols.reshape([n, c * k * k, ho * wo])
+    };
+    let mut y = w2.matmul(cols);
+    if let Some(b) = bias {
+        y = y + b.reshape([1, o, 1]);
+    }
+    y.reshape([n, o, ho, wo])
+}
+
+/// Group normalisation over `[n, c, h, w]` with per-channel affine parameters.
+#[derive(Module, Debug)]
+pub struct GroupNorm {
+    /// Scale, `[c]`.
+    pub weight: Param<Tensor<1>>,
+    /// Shift, `[c]`.
+    pub bias: Param<Tensor<1>>,
+    /// Number of groups.
+    pub groups: usize,
+    /// Added to the variance.
+    pub eps: f64,
+}
+
+impl GroupNorm {
+    pub(crate) fn load(p: &mut ParamSource, key: &str, groups: usize, channels: usize, eps: f64) -> Self {
+        let weight = p.param(&format!("{key}.weight"), [channels], Init::Ones);
+        let bias = p.param(&format!("{key}.bias"), [channels], Init::Zeros);
+        Self { weight, bias, groups, eps }
+    }
+
+    /// Normalises each group of channels of each image to zero mean, unit variance.
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        let [n, c, h, w] = x.dims();
+        let g = self.groups;
+        let x = x.reshape([n, g, (c / g) * h * w]);
+        let (var, mean) = x.clone().var_mean_bias(2);
+        let x = (x - mean) / (var + self.eps).sqrt();
+        let x = x.reshape([n, c, h, w]);
+        x * self.weight.val().reshape([1, c, 1, 1]) + self.bias.val().reshape([1, c, 1, 1])
+    }
+
+    /// `silu(forward(x))`.
+    pub fn forward_silu(&self, x: Tensor<4>) -> Tensor<4> {
+        silu(self.forward(x))
+    }
+}
+
+/// Layer normalisation over the last dimension.
+#[derive(Module, Debug)]
+pub struct LayerNorm {
+    /// Scale, `[d]`.
+    pub weight: Param<Tensor<1>>,
+    /// Shift, `[d]`.
+    pub bias: Param<Tensor<1>>,
+    /// Added to the variance.
+    pub eps: f64,
+}
+
+impl LayerNorm {
+    pub(crate) fn load(p: &mut ParamSource, key: &str, dim: usize, eps: f64) -> Self {
+        let weight = p.param(&format!("{key}.weight"), [dim], Init::Ones);
+        let bias = p.param(&format!("{key}.bias"), [dim], Init::Zeros);
+        Self { weight, bias, eps }
+    }
+
+    /// Normalises the last dimension.
+    pub fn forward<const D: usize>(&self, x: Tensor<D>) -> Tensor<D> {
+        layer_norm(x, self.weight.val(), Some(self.bias.val()), self.eps)
+    }
+}
+
+/// Scaled dot-product attention over token sequences: `q [b, tq, h·d]`, `k`/`v [b, tk, h·d]`
+/// split into `heads` heads, softmax scale `1/√d`; returns `[b, tq, h·d]`.
+pub fn multi_head_attention(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usize) -> Tensor<3> {
+    let [b, tq, width] = q.dims();
+    let tk = k.dims()[1];
+    let d = width / heads;
+    let split = |t: Tensor<3>, len: usize| t.reshape([b, len, heads, d]).swap_dims(1, 2);
+    let o = attention(split(q, tq), split(k, tk), split(v, tk), None, None, AttentionModuleOptions::default());
+    o.swap_dims(1, 2).reshape([b, tq, width])
+}

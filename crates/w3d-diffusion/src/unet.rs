@@ -1,0 +1,296 @@
+//! `UNet2DConditionModel`: the denoiser of Stable Diffusion (image variations), with the
+//! projection class embedding Wonder3D uses for its domain / camera switchers.
+//!
+//! Input: latents `[n, in_channels, h, w]` (h, w multiples of `2^(levels-1)`), one timestep
+//! per image, conditioning tokens `[n, tokens, cross_attention_dim]` and, with
+//! `class_embed_type = "projection"`, class labels `[n, projection_class_embeddings_input_dim]`.
+//! Output: the prediction `[n, out_channels, h, w]`.
+
+use std::path::Path;
+
+use burn::module::Module;
+use burn::tensor::activation::silu;
+use burn::tensor::{Device, Tensor, TensorData};
+use w3d_core::Error;
+
+use crate::blocks::{
+    Downsample, ResnetBlock, ResnetShape, SpatialTransformer, TimestepEmbedding, TransformerShape, Upsample,
+};
+use crate::config::UNetConfig;
+use crate::nn::{Conv2d, GroupNorm};
+use crate::weights::{ParamSource, SafetensorsFile};
+
+/// One down level: ResNets (each optionally followed by a transformer) and a down-sampler.
+#[derive(Module, Debug)]
+struct DownBlock {
+    resnets: Vec<ResnetBlock>,
+    attentions: Vec<SpatialTransformer>,
+    downsampler: Option<Downsample>,
+}
+
+/// One up level: ResNets on the concatenated skip (each optionally followed by a
+/// transformer) and an up-sampler.
+#[derive(Module, Debug)]
+struct UpBlock {
+    resnets: Vec<ResnetBlock>,
+    attentions: Vec<SpatialTransformer>,
+    upsampler: Option<Upsample>,
+}
+
+/// The conditional UNet (see the module docs for shapes).
+#[derive(Module, Debug)]
+pub struct UNet {
+    conv_in: Conv2d,
+    time_embedding: TimestepEmbedding,
+    class_embedding: Option<TimestepEmbedding>,
+    down_blocks: Vec<DownBlock>,
+    mid_resnets: Vec<ResnetBlock>,
+    mid_attention: SpatialTransformer,
+    up_blocks: Vec<UpBlock>,
+    conv_norm_out: GroupNorm,
+    conv_out: Conv2d,
+    #[module(skip)]
+    config: UNetConfig,
+}
+
+impl UNet {
+    /// Loads `config` with the weights of a diffusers `diffusion_pytorch_model.safetensors`
+    /// (f32, f16 or bf16). Fails listing every missing, unexpected or misshaped key.
+    pub fn load(config: &UNetConfig, weights: impl AsRef<Path>, device: &Device) -> Result<Self, Error> {
+        config.validate()?;
+        let mut file = SafetensorsFile::open(weights)?;
+        let mut p = ParamSource::from_file(&mut file, rename_legacy_unet_key, device);
+        let unet = Self::build(config, &mut p)?;
+        p.finish()?;
+        Ok(unet)
+    }
+
+    /// Loads `unet/config.json` and `unet/diffusion_pytorch_model.safetensors` from a diffusers
+    /// checkpoint directory's `unet/` folder.
+    pub fn from_dir(dir: impl AsRef<Path>, device: &Device) -> Result<Self, Error> {
+        let dir = dir.as_ref();
+        let config = UNetConfig::from_file(dir.join("config.json"))?;
+        Self::load(&config, dir.join("diffusion_pytorch_model.safetensors"), device)
+    }
+
+    /// `config` with seeded random weights (for shape, speed and memory checks at real sizes).
+    pub fn random(config: &UNetConfig, seed: u64, device: &Device) -> Result<Self, Error> {
+        config.validate()?;
+        Self::build(config, &mut ParamSource::random(seed, device))
+    }
+
+    /// The config this model was built from.
+    pub fn config(&self) -> &UNetConfig {
+        &self.config
+    }
+
+    fn build(c: &UNetConfig, p: &mut ParamSource) -> Result<Self, Error> {
+        let ch = &c.block_out_channels;
+        let levels = ch.len();
+        let temb = c.time_embed_dim();
+        let (groups, eps) = (c.norm_num_groups, c.norm_eps);
+        let resnet =
+            |c_in, c_out, scale| ResnetShape { c_in, c_out, temb: Some(temb), groups, eps, output_scale: scale };
+        let transformer = |channels, level: usize| -> Result<TransformerShape, Error> {
+            Ok(TransformerShape {
+                channels,
+                heads: c.heads(level)?,
+                layers: c.transformer_layers(level)?,
+                cross_dim: c.cross_attention_dim,
+                groups,
+                linear_projection: c.use_linear_projection,
+            })
+        };
+        let conv_in = Conv2d::load(p, "conv_in", c.in_channels, ch[0], 3, 1, 1, true);
+        let time_embedding = TimestepEmbedding::load(p, "time_embedding", ch[0], temb);
+        let class_embedding = match (c.class_embed_type.as_deref(), c.projection_class_embeddings_input_dim) {
+            (Some("projection"), Some(d)) => Some(TimestepEmbedding::load(p, "class_embedding", d, temb)),
+            _ => None,
+        };
+
+        let mut down_blocks = Vec::with_capacity(levels);
+        let mut c_prev = ch[0];
+        for (i, kind) in c.down_block_types.iter().enumerate() {
+            let c_out = ch[i];
+            let key = format!("down_blocks.{i}");
+            let mut resnets = Vec::new();
+            let mut attentions = Vec::new();
+            for j in 0..c.layers_per_block {
+                let c_in = if j == 0 { c_prev } else { c_out };
+                resnets.push(ResnetBlock::load(p, &format!("{key}.resnets.{j}"), resnet(c_in, c_out, 1.0)));
+                if kind == "CrossAttnDownBlock2D" {
+                    attentions.push(SpatialTransformer::load(
+                        p,
+                        &format!("{key}.attentions.{j}"),
+                        transformer(c_out, i)?,
+                    ));
+                }
+            }
+            let downsampler = (i + 1 < levels)
+                .then(|| Downsample::load(p, &format!("{key}.downsamplers.0"), c_out, c.downsample_padding));
+            down_blocks.push(DownBlock { resnets, attentions, downsampler });
+            c_prev = c_out;
+        }
+
+        let c_mid = ch[levels - 1];
+        let scale = c.mid_block_scale_factor;
+        let mid_resnets = vec![
+            ResnetBlock::load(p, "mid_block.resnets.0", resnet(c_mid, c_mid, scale)),
+            ResnetBlock::load(p, "mid_block.resnets.1", resnet(c_mid, c_mid, scale)),
+        ];
+        let mid_attention = SpatialTransformer::load(p, "mid_block.attentions.0", transformer(c_mid, levels - 1)?);
+
+        let mut up_blocks = Vec::with_capacity(levels);
+        let reversed: Vec<usize> = ch.iter().rev().copied().collect();
+        let mut c_prev_out = reversed[0];
+        for (i, kind) in c.up_block_types.iter().enumerate() {
+            let c_out = reversed[i];
+            let c_skip_in = reversed[(i + 1).min(levels - 1)];
+            let key = format!("up_blocks.{i}");
+            let layers = c.layers_per_block + 1;
+            let mut resnets = Vec::new();
+            let mut attentions = Vec::new();
+            for j in 0..layers {
+                let skip = if j + 1 == layers { c_skip_in } else { c_out };
+                let c_in = if j == 0 { c_prev_out } else { c_out };
+                resnets.push(ResnetBlock::load(p, &format!("{key}.resnets.{j}"), resnet(c_in + skip, c_out, 1.0)));
+                if kind == "CrossAttnUpBlock2D" {
+                    let level = levels - 1 - i;
+                    attentions.push(SpatialTransformer::load(
+                        p,
+                        &format!("{key}.attentions.{j}"),
+                        transformer(c_out, level)?,
+                    ));
+                }
+            }
+            let upsampler = (i + 1 < levels).then(|| Upsample::load(p, &format!("{key}.upsamplers.0"), c_out));
+            up_blocks.push(UpBlock { resnets, attentions, upsampler });
+            c_prev_out = c_out;
+        }
+
+        let conv_norm_out = GroupNorm::load(p, "conv_norm_out", groups, ch[0], eps);
+        let conv_out = Conv2d::load(p, "conv_out", ch[0], c.out_channels, 3, 1, 1, true);
+        Ok(Self {
+            conv_in,
+            time_embedding,
+            class_embedding,
+            down_blocks,
+            mid_resnets,
+            mid_attention,
+            up_blocks,
+            conv_norm_out,
+            conv_out,
+            config: c.clone(),
+        })
+    }
+
+    /// Sinusoidal timestep features `[n, block_out_channels[0]]` (diffusers
+    /// `get_timestep_embedding`, computed in f32 like diffusers).
+    pub fn timestep_features(&self, timesteps: &[f32], device: &Device) -> Tensor<2> {
+        let dim = self.config.block_out_channels[0];
+        let half = dim / 2;
+        let shift = self.config.freq_shift as f32;
+        let ln = -(10000f64.ln()) as f32;
+        let freqs: Vec<f32> = (0..half).map(|i| ((ln * i as f32) / (half as f32 - shift)).exp()).collect();
+        let mut values = Vec::with_capacity(timesteps.len() * dim);
+        for &t in timesteps {
+            let args: Vec<f32> = freqs.iter().map(|f| t * f).collect();
+            let sin = args.iter().map(|a| a.sin());
+            let cos = args.iter().map(|a| a.cos());
+            if self.config.flip_sin_to_cos {
+                values.extend(cos.chain(sin));
+            } else {
+                values.extend(sin.chain(cos));
+            }
+            if dim % 2 == 1 {
+                values.push(0.0);
+            }
+        }
+        Tensor::from_data(TensorData::new(values, [timesteps.len(), dim]), device)
+    }
+
+    /// Predicts noise (or v / x₀, per the scheduler) for `sample` at `timesteps` (one per image,
+    /// or one for all), conditioned on `context` and `class_labels`.
+    pub fn forward(
+        &self,
+        sample: Tensor<4>,
+        timesteps: &[f32],
+        context: Tensor<3>,
+        class_labels: Option<Tensor<2>>,
+    ) -> Result<Tensor<4>, Error> {
+        let c = &self.config;
+        let [n, channels, h, w] = sample.dims();
+        if channels != c.in_channels {
+            return Err(Error::invalid("sample", format!("{} channels (found {channels})", c.in_channels)));
+        }
+        let multiple = 1 << (c.block_out_channels.len() - 1);
+        if h == 0 || w == 0 || !h.is_multiple_of(multiple) || !w.is_multiple_of(multiple) {
+            return Err(Error::invalid("sample", format!("height and width multiples of {multiple} (found {h}x{w})")));
+        }
+        let [cn, _, cw] = context.dims();
+        if cn != n || cw != c.cross_attention_dim {
+            return Err(Error::invalid(
+                "context",
+                format!("[{n}, tokens, {}] (found {:?})", c.cross_attention_dim, context.dims()),
+            ));
+        }
+        let timesteps: Vec<f32> = match timesteps.len() {
+            1 => vec![timesteps[0]; n],
+            len if len == n => timesteps.to_vec(),
+            len => return Err(Error::invalid("timesteps", format!("1 or {n} values (found {len})"))),
+        };
+        let device = sample.device();
+        let mut temb = self.time_embedding.forward(self.timestep_features(&timesteps, &device));
+        match (&self.class_embedding, class_labels) {
+            (Some(embedding), Some(labels)) => {
+                let want = c.projection_class_embeddings_input_dim.unwrap_or(0);
+                if labels.dims() != [n, want] {
+                    return Err(Error::invalid("class_labels", format!("[{n}, {want}] (found {:?})", labels.dims())));
+                }
+                temb = temb + embedding.forward(labels);
+            }
+            (Some(_), None) => return Err(Error::invalid("class_labels", "labels for class_embed_type projection")),
+            (None, Some(_)) => return Err(Error::invalid("class_labels", "none (the model has no class embedding)")),
+            (None, None) => {}
+        }
+        let temb = silu(temb);
+
+        let mut x = if c.center_input_sample { sample * 2.0 - 1.0 } else { sample };
+        x = self.conv_in.forward(x);
+        let mut skips = vec![x.clone()];
+        for block in &self.down_blocks {
+            for (j, resnet) in block.resnets.iter().enumerate() {
+                x = resnet.forward(x, Some(&temb));
+                if let Some(attn) = block.attentions.get(j) {
+                    x = attn.forward(x, &context);
+                }
+                skips.push(x.clone());
+            }
+            if let Some(down) = &block.downsampler {
+                x = down.forward(x);
+                skips.push(x.clone());
+            }
+        }
+        x = self.mid_resnets[0].forward(x, Some(&temb));
+        x = self.mid_attention.forward(x, &context);
+        x = self.mid_resnets[1].forward(x, Some(&temb));
+        for block in &self.up_blocks {
+            for (j, resnet) in block.resnets.iter().enumerate() {
+                let skip = skips.pop().ok_or_else(|| Error::invalid("unet", "a skip connection per up ResNet"))?;
+                x = resnet.forward(Tensor::cat(vec![x, skip], 1), Some(&temb));
+                if let Some(attn) = block.attentions.get(j) {
+                    x = attn.forward(x, &context);
+                }
+            }
+            if let Some(up) = &block.upsampler {
+                x = up.forward(x);
+            }
+        }
+        Ok(self.conv_out.forward(self.conv_norm_out.forward_silu(x)))
+    }
+}
+
+/// Renames keys of older Wonder3D checkpoints to the current names (wonder3d.md §1.3).
+fn rename_legacy_unet_key(key: &str) -> String {
+    key.replace(".attn_joint_twice.", ".attn_joint_mid.").replace(".norm_joint_twice.", ".norm_joint_mid.")
+}

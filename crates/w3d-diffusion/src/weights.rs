@@ -1,0 +1,247 @@
+//! Streaming `.safetensors` weight loading with diffusers / transformers key names.
+//!
+//! The header is parsed once; each tensor is then read from disk on its own (seek + read) and
+//! converted to f32 (from F32, F16 or BF16), so peak memory stays near one copy of the weights
+//! plus the largest single tensor. Every requested key is checked for presence and shape, every
+//! file key must be used, and all problems are reported together by name.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::fs::File;
+use std::io::{Read, Seek, SeekFrom};
+use std::path::{Path, PathBuf};
+
+use burn::module::Param;
+use burn::tensor::{Device, Tensor, TensorData};
+use safetensors::tensor::{Dtype, Metadata, TensorInfo};
+use w3d_core::Error;
+
+/// A `.safetensors` file opened for streaming reads: the header is in memory, the data is not.
+#[derive(Debug)]
+pub struct SafetensorsFile {
+    path: PathBuf,
+    file: File,
+    data_start: u64,
+    tensors: BTreeMap<String, TensorInfo>,
+}
+
+/// Largest header accepted (the format's own limit).
+const MAX_HEADER: u64 = 100_000_000;
+
+impl SafetensorsFile {
+    /// Opens `path` and parses its header; fails on a malformed or truncated file.
+    pub fn open(path: impl AsRef<Path>) -> Result<Self, Error> {
+        let path = path.as_ref().to_path_buf();
+        let mut file = File::open(&path).map_err(|e| Error::io(&path, e))?;
+        let file_len = file.metadata().map_err(|e| Error::io(&path, e))?.len();
+        let mut len_bytes = [0u8; 8];
+        file.read_exact(&mut len_bytes)
+            .map_err(|_| Error::format(&path, "header length", format!("8 bytes (file has {file_len})")))?;
+        let header_len = u64::from_le_bytes(len_bytes);
+        if header_len > MAX_HEADER || 8 + header_len > file_len {
+            return Err(Error::format(
+                &path,
+                "header",
+                format!(
+                    "{header_len} header bytes after the length (file has {file_len} bytes in all): truncated or not safetensors"
+                ),
+            ));
+        }
+        let mut header = vec![0u8; header_len as usize];
+        file.read_exact(&mut header).map_err(|e| Error::io(&path, e))?;
+        // Deserializing validates the header (contiguous offsets, sizes matching shapes and dtypes).
+        let metadata: Metadata = serde_json::from_slice(&header)
+            .map_err(|e| Error::format(&path, "header", format!("a valid safetensors header ({e})")))?;
+        let data_start = 8 + header_len;
+        let tensors: BTreeMap<String, TensorInfo> =
+            metadata.tensors().into_iter().map(|(name, info)| (name, info.clone())).collect();
+        let data_len = tensors.values().map(|t| t.data_offsets.1 as u64).max().unwrap_or(0);
+        if data_start + data_len > file_len {
+            return Err(Error::format(
+                &path,
+                "data",
+                format!("{data_len} data bytes as the header declares (file has {}): truncated", file_len - data_start),
+            ));
+        }
+        Ok(Self { path, file, data_start, tensors })
+    }
+
+    /// The file this was opened from.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Every tensor name with its shape.
+    pub fn shapes(&self) -> impl Iterator<Item = (&str, &[usize])> {
+        self.tensors.iter().map(|(k, v)| (k.as_str(), v.shape.as_slice()))
+    }
+
+    /// Reads one tensor as f32 values (row-major) and its shape.
+    pub fn read_f32(&mut self, key: &str) -> Result<(Vec<f32>, Vec<usize>), Error> {
+        let info = self.tensors.get(key).ok_or_else(|| Error::format(&self.path, key, "a tensor of that name"))?;
+        let (begin, end) = info.data_offsets;
+        let shape = info.shape.clone();
+        let dtype = info.dtype;
+        let mut bytes = vec![0u8; end - begin];
+        self.file.seek(SeekFrom::Start(self.data_start + begin as u64)).map_err(|e| Error::io(&self.path, e))?;
+        self.file.read_exact(&mut bytes).map_err(|e| Error::io(&self.path, e))?;
+        let values: Vec<f32> = match dtype {
+            Dtype::F32 => bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect(),
+            Dtype::F16 => bytes.chunks_exact(2).map(|b| half::f16::from_le_bytes([b[0], b[1]]).to_f32()).collect(),
+            Dtype::BF16 => bytes.chunks_exact(2).map(|b| half::bf16::from_le_bytes([b[0], b[1]]).to_f32()).collect(),
+            other => return Err(Error::format(&self.path, key, format!("F32, F16 or BF16 data (found {other:?})"))),
+        };
+        Ok((values, shape))
+    }
+}
+
+/// How a parameter is initialised when no file is given (random weights for shape / speed /
+/// memory checks at the real sizes).
+#[derive(Clone, Copy, Debug)]
+pub(crate) enum Init {
+    /// Uniform in `±1/√fan_in` (PyTorch's default for linear and conv weights).
+    Uniform { fan_in: usize },
+    /// All ones (norm scales).
+    Ones,
+    /// All zeros (norm shifts).
+    Zeros,
+}
+
+enum Source<'a> {
+    File { file: &'a mut SafetensorsFile, renamed: BTreeMap<String, String>, used: BTreeSet<String> },
+    Random { state: u64 },
+}
+
+/// Hands out parameters by diffusers key, from a file or from a seeded random initialiser,
+/// collecting every missing / misshaped key so [`ParamSource::finish`] reports them all.
+pub(crate) struct ParamSource<'a> {
+    source: Source<'a>,
+    device: Device,
+    missing: Vec<String>,
+    wrong: Vec<String>,
+    unreadable: Vec<String>,
+}
+
+impl<'a> ParamSource<'a> {
+    /// Parameters from `file`. `rename` maps a legacy file key to its current name (or
+    /// returns it unchanged); keys for which `ignore` is true are allowed to stay unused.
+    pub(crate) fn from_file(file: &'a mut SafetensorsFile, rename: impl Fn(&str) -> String, device: &Device) -> Self {
+        let renamed = file.tensors.keys().map(|k| (rename(k), k.clone())).collect();
+        Self {
+            source: Source::File { file, renamed, used: BTreeSet::new() },
+            device: device.clone(),
+            missing: Vec::new(),
+            wrong: Vec::new(),
+            unreadable: Vec::new(),
+        }
+    }
+
+    /// Seeded random parameters (same seed, same values).
+    pub(crate) fn random(seed: u64, device: &Device) -> Self {
+        Self {
+            source: Source::Random { state: seed ^ 0x5DEE_CE66_D1CE_4E5B },
+            device: device.clone(),
+            missing: Vec::new(),
+            wrong: Vec::new(),
+            unreadable: Vec::new(),
+        }
+    }
+
+    /// The device parameters are created on.
+    pub(crate) fn device(&self) -> &Device {
+        &self.device
+    }
+
+    /// Values of `key` with `shape` (row-major f32); zeros if it is missing or misshaped (the
+    /// problem is recorded and reported by `finish`).
+    pub(crate) fn values(&mut self, key: &str, shape: &[usize], init: Init) -> Vec<f32> {
+        let n: usize = shape.iter().product();
+        match &mut self.source {
+            Source::Random { state } => match init {
+                Init::Ones => vec![1.0; n],
+                Init::Zeros => vec![0.0; n],
+                Init::Uniform { fan_in } => {
+                    let bound = 1.0 / (fan_in.max(1) as f64).sqrt();
+                    (0..n)
+                        .map(|_| {
+                            *state ^= *state << 13;
+                            *state ^= *state >> 7;
+                            *state ^= *state << 17;
+                            let u = (*state >> 11) as f64 / (1u64 << 53) as f64;
+                            ((2.0 * u - 1.0) * bound) as f32
+                        })
+                        .collect()
+                }
+            },
+            Source::File { file, renamed, used } => {
+                let Some(file_key) = renamed.get(key).cloned() else {
+                    self.missing.push(format!("{key} {shape:?}"));
+                    return vec![0.0; n];
+                };
+                used.insert(file_key.clone());
+                let found = file.tensors[&file_key].shape.clone();
+                // Linear weights stored as 1x1 convolutions ([out, in, 1, 1]) are accepted.
+                let squeezed: Vec<usize> = if found.len() == shape.len() + 2 && found.ends_with(&[1, 1]) {
+                    found[..shape.len()].to_vec()
+                } else {
+                    found.clone()
+                };
+                if squeezed != shape {
+                    self.wrong.push(format!("{key}: expected {shape:?}, found {found:?}"));
+                    return vec![0.0; n];
+                }
+                match file.read_f32(&file_key) {
+                    Ok((values, _)) => values,
+                    Err(e) => {
+                        self.unreadable.push(format!("{key}: {e}"));
+                        vec![0.0; n]
+                    }
+                }
+            }
+        }
+    }
+
+    /// A parameter tensor of `shape`.
+    pub(crate) fn param<const D: usize>(&mut self, key: &str, shape: [usize; D], init: Init) -> Param<Tensor<D>> {
+        let values = self.values(key, &shape, init);
+        Param::from_tensor(Tensor::from_data(TensorData::new(values, shape), &self.device))
+    }
+
+    /// Marks file keys matching `ignore` as used (buffers such as CLIP's `position_ids`).
+    pub(crate) fn ignore(&mut self, ignore: impl Fn(&str) -> bool) {
+        if let Source::File { renamed, used, .. } = &mut self.source {
+            for (name, file_key) in renamed.iter() {
+                if ignore(name) {
+                    used.insert(file_key.clone());
+                }
+            }
+        }
+    }
+
+    /// Ok if every requested key was present with the right shape and every file key was
+    /// used; otherwise one error listing every missing, unexpected and misshaped key.
+    pub(crate) fn finish(self) -> Result<(), Error> {
+        let Source::File { file, renamed, used } = self.source else {
+            return Ok(());
+        };
+        let unexpected: Vec<String> = renamed
+            .iter()
+            .filter(|(_, f)| !used.contains(*f))
+            .map(|(name, f)| if name == f { f.clone() } else { format!("{f} (read as {name})") })
+            .collect();
+        if self.missing.is_empty() && self.wrong.is_empty() && unexpected.is_empty() && self.unreadable.is_empty() {
+            return Ok(());
+        }
+        let mut report = String::from("keys and shapes matching the model config;");
+        for (title, list) in [
+            ("missing", &self.missing),
+            ("wrong shape", &self.wrong),
+            ("unexpected", &unexpected),
+            ("unreadable", &self.unreadable),
+        ] {
+            if !list.is_empty() {
+                report.push_str(&format!("\n  {} {title}: {}", list.len(), list.join(", ")));
+            }
+        }
+        Err(Error::format(file.path(), "weights", report))
+    }
+}

@@ -1,0 +1,77 @@
+//! The real-size Wonder3D base configs parse; the real-size models instantiate and run one
+//! forward within 8 GiB peak memory (ignored by default: slow; run with
+//! `cargo test --release -p w3d-diffusion --test full_size -- --ignored --nocapture`).
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use w3d_diffusion::{
+    ClipVision, ClipVisionConfig, DdimScheduler, SchedulerConfig, Tensor, UNet, UNetConfig, Vae, VaeConfig,
+};
+
+fn config(path: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs").join("wonder3d").join(path)
+}
+
+/// Peak resident memory of this process in bytes (`VmHWM`).
+fn peak_rss() -> u64 {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap();
+    let line = status.lines().find(|l| l.starts_with("VmHWM:")).unwrap();
+    line.split_whitespace().nth(1).unwrap().parse::<u64>().unwrap() * 1024
+}
+
+#[test]
+fn real_configs_parse() {
+    let unet = UNetConfig::from_file(config("unet/config.json")).unwrap();
+    assert_eq!((unet.heads(0).unwrap(), unet.time_embed_dim(), unet.in_channels), (8, 1280, 8));
+    let vae = VaeConfig::from_file(config("vae/config.json")).unwrap();
+    assert_eq!(vae.downscale(), 8);
+    let clip = ClipVisionConfig::from_file(config("image_encoder/config.json")).unwrap();
+    assert_eq!(clip.patches_per_side(), 16);
+    let scheduler = SchedulerConfig::from_file(config("scheduler/scheduler_config.json")).unwrap();
+    assert_eq!(scheduler, SchedulerConfig::stable_diffusion());
+    assert_eq!(DdimScheduler::new(scheduler, 50).unwrap().timesteps()[0], 981);
+}
+
+#[test]
+#[ignore = "slow: real-size models (~4 GB of weights)"]
+fn real_size_models_run_within_8_gib() {
+    let device = w3d_diffusion::default_device();
+    let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
+
+    let t = Instant::now();
+    let unet = UNet::random(&UNetConfig::from_file(config("unet/config.json")).unwrap(), 1, &device).unwrap();
+    println!("unet built in {:.1} s, peak RSS {:.2} GiB", t.elapsed().as_secs_f64(), gib(peak_rss()));
+    let t = Instant::now();
+    let out = unet
+        .forward(
+            Tensor::zeros([2, 8, 32, 32], &device),
+            &[500.0],
+            Tensor::zeros([2, 1, 768], &device),
+            Some(Tensor::zeros([2, 14], &device)),
+        )
+        .unwrap();
+    assert_eq!(out.dims(), [2, 4, 32, 32]);
+    let values = out.into_data().try_to_vec::<f32>().unwrap();
+    assert!(values.iter().all(|v| v.is_finite()));
+    println!("unet forward (2 x 8 x 32 x 32) {:.1} s, peak RSS {:.2} GiB", t.elapsed().as_secs_f64(), gib(peak_rss()));
+    drop(unet);
+
+    let vae = Vae::random(&VaeConfig::from_file(config("vae/config.json")).unwrap(), 2, &device).unwrap();
+    let t = Instant::now();
+    let latent = vae.encode_mean(Tensor::zeros([1, 3, 256, 256], &device)).unwrap();
+    assert_eq!(latent.dims(), [1, 4, 32, 32]);
+    let image = vae.decode(latent).unwrap();
+    assert_eq!(image.dims(), [1, 3, 256, 256]);
+    println!("vae encode + decode 256² {:.1} s, peak RSS {:.2} GiB", t.elapsed().as_secs_f64(), gib(peak_rss()));
+    drop(vae);
+
+    let clip =
+        ClipVision::random(&ClipVisionConfig::from_file(config("image_encoder/config.json")).unwrap(), 3, &device)
+            .unwrap();
+    let t = Instant::now();
+    let embeds = clip.image_embeds(Tensor::zeros([1, 3, 224, 224], &device)).unwrap();
+    assert_eq!(embeds.dims(), [1, 768]);
+    println!("clip 224² {:.1} s, peak RSS {:.2} GiB", t.elapsed().as_secs_f64(), gib(peak_rss()));
+    assert!(peak_rss() < 8 << 30, "peak RSS {:.2} GiB", gib(peak_rss()));
+}
