@@ -29,6 +29,7 @@
 pub mod blocks;
 pub mod clip;
 pub mod config;
+pub mod multiview;
 pub mod nn;
 pub mod scheduler;
 pub mod unet;
@@ -38,6 +39,9 @@ pub mod weights;
 pub use burn::tensor::{Device, Tensor, TensorData};
 pub use clip::{CLIP_MEAN, CLIP_STD, ClipVision, preprocess as clip_preprocess};
 pub use config::{ClipVisionConfig, PerBlock, SchedulerConfig, UNetConfig, VaeConfig};
+pub use multiview::{
+    CameraType, Conditioning, Domain, GeneratedViews, MultiViewPipeline, SampleOptions, prepare_input, switcher_labels,
+};
 pub use scheduler::{
     DdimInverseScheduler, DdimScheduler, Prediction, classifier_free_guidance, ddim_invert, ddim_sample, gaussian_noise,
 };
