@@ -2,7 +2,10 @@
 //! (`UNet2DConditionModel`, with the projection class embedding Wonder3D's switchers use), the
 //! `AutoencoderKL` VAE, the CLIP vision encoder with projection and its preprocessing, DDIM
 //! sampling with classifier-free guidance and DDIM inversion (exactly as diffusers), and
-//! streaming `.safetensors` loading with the diffusers / transformers key names.
+//! streaming `.safetensors` loading with the diffusers / transformers key names. The UNet is
+//! also Wonder3D++'s multi-view cross-domain `UNetMV2DConditionModel` (config fields
+//! `num_views`, `cd_attention_mid`), and [`MultiViewPipeline`] turns one RGBA image into 6 views
+//! × {normal, colour} and a `w3d_core::ViewSet` ([`multiview`]).
 //!
 //! Configs deserialize the `config.json` files of a diffusers checkpoint directory as they are;
 //! weights load from f32, f16 or bf16 safetensors and every missing, unexpected or misshaped key

@@ -15,6 +15,20 @@
 //!    [`GeneratedViews::to_view_set`] turns the images into a [`ViewSet`] in the rig's frame.
 //!
 //! [`MultiViewPipeline::invert`] is the DDIM inversion the refinement stage uses.
+//!
+//! ```
+//! use w3d_diffusion::{CameraType, Domain, switcher_labels};
+//!
+//! // Class labels of the six colour views, perspective camera: 14 values per view.
+//! let labels = switcher_labels(Domain::Colour, CameraType::Perspective, 14)?;
+//! assert_eq!(labels.len(), 6 * 14);
+//! // The back view (index 3): d_azim = π, so its sine is ~0 and its cosine ~-1.
+//! let back = &labels[3 * 14..4 * 14];
+//! assert!(back[2].abs() < 1e-5 && (back[7 + 2] + 1.0).abs() < 1e-5);
+//! // sin of the switches: camera [1, 0] (persp), task [0, 1] (colour).
+//! assert_eq!(back[3..7], [1f32.sin(), 0.0, 0.0, 1f32.sin()]);
+//! # Ok::<(), w3d_core::Error>(())
+//! ```
 
 use std::path::Path;
 use std::str::FromStr;
@@ -447,6 +461,21 @@ impl MultiViewPipeline {
         Ok(Tensor::cat(vec![normal, colour], 0))
     }
 
+    fn check_conditioning(&self, cond: &Conditioning) -> Result<(), Error> {
+        let [_, c, h, w] = self.noise_shape();
+        let d = self.unet.config().cross_attention_dim;
+        if cond.embeds.dims() != [1, d] {
+            return Err(Error::invalid("conditioning embeds", format!("[1, {d}] (found {:?})", cond.embeds.dims())));
+        }
+        if cond.latent.dims() != [1, c, h, w] {
+            return Err(Error::invalid(
+                "conditioning latent",
+                format!("[1, {c}, {h}, {w}] (found {:?})", cond.latent.dims()),
+            ));
+        }
+        Ok(())
+    }
+
     fn check_latents(&self, x: &Tensor<4>, field: &str, allow_shared: bool) -> Result<(), Error> {
         let [_, c, h, w] = self.noise_shape();
         let dims = x.dims();
@@ -470,6 +499,7 @@ impl MultiViewPipeline {
         progress: &mut dyn FnMut(usize, usize),
     ) -> Result<Tensor<4>, Error> {
         self.check_latents(&noise, "noise", true)?;
+        self.check_conditioning(cond)?;
         let device = noise.device();
         let scheduler = DdimScheduler::new(self.scheduler.clone(), options.steps)?;
         let labels = self.class_labels(options.camera, &device)?;
@@ -501,6 +531,7 @@ impl MultiViewPipeline {
         refinements: usize,
     ) -> Result<Tensor<4>, Error> {
         self.check_latents(&latents, "latents", false)?;
+        self.check_conditioning(cond)?;
         let inverse = DdimInverseScheduler::new(self.scheduler.clone(), steps)?;
         let labels = self.class_labels(camera, &latents.device())?;
         ddim_invert(&inverse, latents, refinements, |x, t| self.predict(x, t, cond, &labels, 1.0))

@@ -79,12 +79,12 @@ impl UNet {
         Ok(unet)
     }
 
-    /// Loads `unet/config.json` and `unet/diffusion_pytorch_model.safetensors` from a diffusers
-    /// checkpoint directory's `unet/` folder.
+    /// Loads `config.json` and `diffusion_pytorch_model.safetensors` (or its `.fp16.safetensors`
+    /// variant) from a diffusers checkpoint directory's `unet/` folder.
     pub fn from_dir(dir: impl AsRef<Path>, device: &Device) -> Result<Self, Error> {
         let dir = dir.as_ref();
         let config = UNetConfig::from_file(dir.join("config.json"))?;
-        Self::load(&config, dir.join("diffusion_pytorch_model.safetensors"), device)
+        Self::load(&config, crate::weights::find_weights(dir, "diffusion_pytorch_model")?, device)
     }
 
     /// `config` with seeded random weights (for shape, speed and memory checks at real sizes).

@@ -355,3 +355,55 @@ fn generated_views_become_a_view_set_in_the_rig_frame() {
     let (loaded, loaded_rig) = ViewSet::load(dir.path()).unwrap();
     assert_eq!((loaded.views.len(), loaded_rig.name.as_str()), (6, "wonder3d_ortho"));
 }
+
+/// Copies the tiny model directory into a temporary one.
+fn tiny_copy() -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    for sub in ["unet", "vae", "image_encoder", "scheduler", "feature_extractor"] {
+        std::fs::create_dir_all(dir.path().join(sub)).unwrap();
+        for entry in std::fs::read_dir(fixture(&format!("wonder3d_tiny/{sub}"))).unwrap() {
+            let entry = entry.unwrap();
+            std::fs::copy(entry.path(), dir.path().join(sub).join(entry.file_name())).unwrap();
+        }
+    }
+    dir
+}
+
+#[test]
+fn model_directory_problems_are_named() {
+    let device = w3d_diffusion::default_device();
+    let m = MultiViewPipeline::from_dir(fixture("no_such_model"), &device).unwrap_err().to_string();
+    assert!(m.contains("not a directory"), "{m}");
+    // The diffusers fp16 variant name loads; a PyTorch pickle gets conversion advice.
+    let dir = tiny_copy();
+    let unet = dir.path().join("unet");
+    std::fs::rename(
+        unet.join("diffusion_pytorch_model.safetensors"),
+        unet.join("diffusion_pytorch_model.fp16.safetensors"),
+    )
+    .unwrap();
+    MultiViewPipeline::from_dir(dir.path(), &device).unwrap();
+    std::fs::rename(unet.join("diffusion_pytorch_model.fp16.safetensors"), unet.join("diffusion_pytorch_model.bin"))
+        .unwrap();
+    let m = MultiViewPipeline::from_dir(dir.path(), &device).unwrap_err().to_string();
+    assert!(m.contains("diffusion_pytorch_model.bin") && m.contains("convert"), "{m}");
+    // Latents and conditions of the wrong shape.
+    let pipeline = MultiViewPipeline::from_dir(fixture("wonder3d_tiny"), &device).unwrap();
+    let cond = w3d_diffusion::Conditioning {
+        embeds: Tensor::zeros([1, 16], &device),
+        latent: Tensor::zeros([1, 4, 8, 8], &device),
+    };
+    let options = SampleOptions { steps: 1, ..SampleOptions::default() };
+    let m = pipeline.sample_from(Tensor::zeros([5, 4, 8, 8], &device), &cond, &options, &mut |_, _| {}).unwrap_err();
+    assert!(m.to_string().contains("[6, 4, 8, 8] or [12, 4, 8, 8]"), "{m}");
+    let bad = w3d_diffusion::Conditioning { embeds: Tensor::zeros([1, 12], &device), ..cond };
+    let m = pipeline.sample_from(Tensor::zeros([6, 4, 8, 8], &device), &bad, &options, &mut |_, _| {}).unwrap_err();
+    assert!(m.to_string().contains("embeds"), "{m}");
+    // A UNet config without Wonder3D's six views.
+    let dir = tiny_copy();
+    let config_path = dir.path().join("unet/config.json");
+    let config = std::fs::read_to_string(&config_path).unwrap().replace("\"num_views\": 6", "\"num_views\": 1");
+    std::fs::write(&config_path, config).unwrap();
+    let m = MultiViewPipeline::from_dir(dir.path(), &device).unwrap_err().to_string();
+    assert!(m.contains("num_views") && m.contains("found 1"), "{m}");
+}
