@@ -2,8 +2,9 @@
 //! Wonder3D base config, random weights) on flex and ndarray, and the UNet's convolution
 //! layers with the backend `conv2d` (direct) against im2col + GEMM, and one guided denoising
 //! step of the real-size multi-view cross-domain UNet (12 images at 32×32 latents, 24 UNet
-//! images with guidance, `configs/wonder3d/unet_mv`) on ndarray (`-- mv_step`; ~1 min per
-//! iteration on 2 cores). The xtask then times diffusers on torch CPU with the same config and
+//! images with guidance, `configs/wonder3d/unet_mv`) on ndarray — only with
+//! `W3D_BENCH_MV_STEP=1` (`W3D_BENCH_MV_STEP=1 cargo bench -p w3d-diffusion --bench diffusion --
+//! mv_step`): one iteration takes minutes on 2 cores and the models need ~8 GiB. The xtask then times diffusers on torch CPU with the same config and
 //! input as the single-view forward (xtask/python/bench_diffusion_torch.py).
 #![allow(missing_docs)] // criterion_group! generates an undocumented function
 
@@ -93,6 +94,9 @@ fn conv_layers(c: &mut Criterion) {
 
 /// One guided DDIM step of the real-size multi-view pipeline (random weights) on ndarray.
 fn multiview_step(c: &mut Criterion) {
+    if std::env::var_os("W3D_BENCH_MV_STEP").is_none() {
+        return;
+    }
     let mut group = c.benchmark_group("mv_step_b12_cfg_32x32");
     group.sample_size(10).measurement_time(Duration::from_secs(60)).warm_up_time(Duration::from_millis(1));
     let device = w3d_diffusion::ndarray_device();
