@@ -46,6 +46,9 @@ def save(tensors, path):
 
 
 def write_config(path, config):
+    # diffusers records the defaulted fields as a set: sort them so reruns write the same bytes.
+    if "_use_default_values" in config:
+        config = {**config, "_use_default_values": sorted(config["_use_default_values"])}
     with open(path, "w") as f:
         json.dump(config, f, indent=1, sort_keys=True)
 
