@@ -2,17 +2,21 @@
 
 Builds tiny random-weight configs of the diffusers UNet2DConditionModel and AutoencoderKL and
 the transformers CLIPVisionModelWithProjection, runs them (f32, CPU) on fixed inputs, runs DDIM
-sampling (with classifier-free guidance) and DDIM inversion, and saves configs, weights, inputs
-and outputs under crates/w3d-diffusion/tests/fixtures. Needs torch, diffusers, transformers,
+sampling (with classifier-free guidance) and DDIM inversion, builds a tiny Wonder3D++ multi-view
+cross-domain UNet (on diffusers' blocks, with the real checkpoint key names) and runs one forward
+per camera type and a 5-step guided multi-view pipeline, and saves configs, weights, inputs and
+outputs under crates/w3d-diffusion/tests/fixtures. Needs torch, diffusers, transformers,
 safetensors, pillow.
 """
 
 import json
 import os
 import sys
+import types
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from diffusers import AutoencoderKL, DDIMInverseScheduler, DDIMScheduler, UNet2DConditionModel
 from PIL import Image
 from safetensors.torch import save_file
@@ -42,6 +46,9 @@ def save(tensors, path):
 
 
 def write_config(path, config):
+    # diffusers records the defaulted fields as a set: sort them so reruns write the same bytes.
+    if "_use_default_values" in config:
+        config = {**config, "_use_default_values": sorted(config["_use_default_values"])}
     with open(path, "w") as f:
         json.dump(config, f, indent=1, sort_keys=True)
 
@@ -225,12 +232,280 @@ def scheduler_fixture(unet):
     save(out, os.path.join(OUT, "scheduler.safetensors"))
 
 
+# ---------------------------------------------------------------------------------------------
+# Wonder3D multi-view cross-domain UNet (design reference `wonder3d.md` §1.2-§3), written here
+# from that description on top of diffusers' UNet2DConditionModel / Attention building blocks.
+
+NUM_VIEWS = 6
+
+# (d_elev, d_azim) view labels of the six views, radians (wonder3d.md §2).
+VIEW_LABELS = [
+    (0.000000, 0.000000),
+    (-0.236240, 0.812378),
+    (-0.168619, 1.693490),
+    (0.522037, 3.141593),
+    (0.690655, 4.835082),
+    (0.373314, 5.586011),
+]
+
+
+def heads_split(x, heads):
+    n, t, c = x.shape
+    return x.view(n, t, heads, c // heads).transpose(1, 2)
+
+
+def heads_merge(x):
+    n, h, t, d = x.shape
+    return x.transpose(1, 2).reshape(n, t, h * d)
+
+
+class MultiViewAttnProcessor:
+    """Self-attention whose keys / values are the tokens of all views of the image's group.
+
+    The batch is `(groups * views, tokens, channels)`; K and V of a group are laid out as one
+    sequence of `views * tokens` and repeated for each of its views, so every view's queries
+    attend jointly over all views of the same object and domain (itself included).
+    """
+
+    def __init__(self, views):
+        self.views = views
+
+    def __call__(self, attn, hidden_states, encoder_hidden_states=None, attention_mask=None, temb=None, **kwargs):
+        n, t, c = hidden_states.shape
+        v = self.views
+        q = attn.to_q(hidden_states)
+        k = attn.to_k(hidden_states).reshape(n // v, v * t, c).repeat_interleave(v, dim=0)
+        val = attn.to_v(hidden_states).reshape(n // v, v * t, c).repeat_interleave(v, dim=0)
+        o = F.scaled_dot_product_attention(heads_split(q, attn.heads), heads_split(k, attn.heads), heads_split(val, attn.heads))
+        return attn.to_out[1](attn.to_out[0](heads_merge(o)))
+
+
+class CrossDomainAttnProcessor:
+    """Cross-domain attention: the batch is [normal half, colour half]; entry i of either half
+    attends to the concatenated tokens of entry i of both halves (same view, both domains)."""
+
+    def __call__(self, attn, hidden_states, encoder_hidden_states=None, attention_mask=None, temb=None, **kwargs):
+        n, t, c = hidden_states.shape
+        half = n // 2
+        q = attn.to_q(hidden_states)
+        k = attn.to_k(hidden_states)
+        val = attn.to_v(hidden_states)
+        k = torch.cat([k[:half], k[half:]], dim=1).repeat(2, 1, 1)
+        val = torch.cat([val[:half], val[half:]], dim=1).repeat(2, 1, 1)
+        o = F.scaled_dot_product_attention(heads_split(q, attn.heads), heads_split(k, attn.heads), heads_split(val, attn.heads))
+        return attn.to_out[1](attn.to_out[0](heads_merge(o)))
+
+
+def mv_block_forward(self, hidden_states, attention_mask=None, encoder_hidden_states=None, **kwargs):
+    """Pre-norm residual order of the multi-view block: MV self-attention, cross-domain
+    attention, cross-attention to the CLIP token, GEGLU feed-forward."""
+    h = self.attn1(self.norm1(hidden_states)) + hidden_states
+    h = self.attn_joint_mid(self.norm_joint_mid(h)) + h
+    h = self.attn2(self.norm2(h), encoder_hidden_states=encoder_hidden_states) + h
+    return self.ff(self.norm3(h)) + h
+
+
+def make_multiview(unet):
+    """Turns every transformer block of a diffusers UNet into the multi-view cross-domain block
+    (attn1 keeps its weights, `attn_joint_mid` + `norm_joint_mid` are new)."""
+    from diffusers.models.attention import BasicTransformerBlock
+    from diffusers.models.attention_processor import Attention
+
+    for module in unet.modules():
+        if isinstance(module, BasicTransformerBlock):
+            dim = module.norm1.normalized_shape[0]
+            heads = module.attn1.heads
+            module.attn1.set_processor(MultiViewAttnProcessor(NUM_VIEWS))
+            module.norm_joint_mid = torch.nn.LayerNorm(dim)
+            module.attn_joint_mid = Attention(
+                query_dim=dim, heads=heads, dim_head=dim // heads, bias=False, processor=CrossDomainAttnProcessor()
+            )
+            module.forward = types.MethodType(mv_block_forward, module)
+
+
+def switcher_labels(domain, camera, input_dim=14):
+    """Class labels `(6, input_dim)`: concat(sin v, cos v) of v = [elev_cond, d_elev, d_azim,
+    cam_type(2), task(2)] (the camera type only in the 14-d Wonder3D++ form)."""
+    task = [1.0, 0.0] if domain == "normal" else [0.0, 1.0]
+    cam = [0.0, 1.0] if camera == "ortho" else [1.0, 0.0]
+    rows = []
+    for de, da in VIEW_LABELS:
+        v = [0.0, de, da] + (cam if input_dim == 14 else []) + task
+        v = torch.tensor(v, dtype=torch.float32)
+        rows.append(torch.cat([torch.sin(v), torch.cos(v)]))
+    return torch.stack(rows)
+
+
+def to_f16_values(model):
+    """Rounds every parameter to f16 (the checkpoint is stored in f16; the reference runs the
+    rounded values in f32)."""
+    for p in model.parameters():
+        p.copy_(p.half().float())
+
+
+MV_UNET = dict(
+    sample_size=8,
+    in_channels=8,
+    out_channels=4,
+    down_block_types=["CrossAttnDownBlock2D", "DownBlock2D"],
+    up_block_types=["UpBlock2D", "CrossAttnUpBlock2D"],
+    block_out_channels=[32, 32],
+    layers_per_block=1,
+    norm_num_groups=8,
+    cross_attention_dim=16,
+    attention_head_dim=2,
+    class_embed_type="projection",
+    projection_class_embeddings_input_dim=14,
+)
+
+
+def wonder3d_unet_config(unet):
+    """The tiny UNet's config.json in the form of a Wonder3D checkpoint (UNetMV2DConditionModel)."""
+    config = dict(unet.config)
+    config["_class_name"] = "UNetMV2DConditionModel"
+    config["down_block_types"] = [t.replace("CrossAttnDownBlock2D", "CrossAttnDownBlockMV2D") for t in config["down_block_types"]]
+    config["up_block_types"] = [t.replace("CrossAttnUpBlock2D", "CrossAttnUpBlockMV2D") for t in config["up_block_types"]]
+    config["mid_block_type"] = "UNetMidBlockMV2DCrossAttn"
+    config.update(num_views=NUM_VIEWS, cd_attention_mid=True, cd_attention_last=False, multiview_attention=True,
+                  sparse_mv_attention=False, mvcd_attention=False)
+    return config
+
+
+def tiny_pipeline(unet, vae, clip, processor, image_u8, noise, steps, guidance, camera):
+    """The multi-view cross-domain sampling loop (wonder3d.md §3): CLIP image embedding and the
+    VAE latent mode of the white-background input as conditions, one noise per view shared by
+    both domains, CFG batch [normal_uncond, normal_cond, colour_uncond, colour_cond] with a zero
+    embedding and a zero latent for the unconditional branch, deterministic DDIM."""
+    pixels = processor(images=Image.fromarray(image_u8), return_tensors="pt").pixel_values
+    embeds = clip(pixel_values=pixels).image_embeds
+    image = torch.from_numpy(image_u8.astype(np.float32) / 255.0).permute(2, 0, 1)[None]
+    cond_latent = vae.encode(image * 2 - 1).latent_dist.mode() * vae.config.scaling_factor
+    v = NUM_VIEWS
+    cond = cond_latent.expand(v, -1, -1, -1)
+    ctx = embeds[:, None, :].expand(v, -1, -1)
+    labels_n = switcher_labels("normal", camera)
+    labels_c = switcher_labels("colour", camera)
+    s = DDIMScheduler(**SD)
+    s.set_timesteps(steps)
+    latents = torch.cat([noise, noise])
+    for t in s.timesteps:
+        ln, lc = latents[:v], latents[v:]
+        model_in = torch.cat([
+            torch.cat([ln, torch.zeros_like(cond)], 1),
+            torch.cat([ln, cond], 1),
+            torch.cat([lc, torch.zeros_like(cond)], 1),
+            torch.cat([lc, cond], 1),
+        ])
+        context = torch.cat([torch.zeros_like(ctx), ctx, torch.zeros_like(ctx), ctx])
+        labels = torch.cat([labels_n, labels_n, labels_c, labels_c])
+        out = unet(model_in, t, encoder_hidden_states=context, class_labels=labels).sample
+        nu, nc, cu, cc = out.chunk(4)
+        eps = torch.cat([nu + guidance * (nc - nu), cu + guidance * (cc - cu)])
+        latents = s.step(eps, t, latents, eta=0.0).prev_sample
+    decoded = (vae.decode(latents / vae.config.scaling_factor).sample / 2 + 0.5).clamp(0, 1)
+    return embeds, cond_latent, latents, decoded
+
+
+def multiview_fixtures():
+    """`tests/fixtures/wonder3d_tiny/`: a tiny Wonder3D++ model directory (unet/ with the real
+    key names in f16, vae/, image_encoder/, feature_extractor/, scheduler/, model_index.json)
+    and `tests/fixtures/multiview/`: UNet forward outputs for both camera types and a 5-step
+    guided pipeline run."""
+    torch.manual_seed(1)
+    model_dir = os.path.join(OUT, "wonder3d_tiny")
+    io_dir = os.path.join(OUT, "multiview")
+    for sub in ["unet", "vae", "image_encoder", "feature_extractor", "scheduler"]:
+        os.makedirs(os.path.join(model_dir, sub), exist_ok=True)
+    os.makedirs(io_dir, exist_ok=True)
+
+    unet = UNet2DConditionModel(**MV_UNET).eval()
+    make_multiview(unet)
+    perturb_norms(unet)
+    to_f16_values(unet)
+    save_file(state(unet, torch.float16), os.path.join(model_dir, "unet", "diffusion_pytorch_model.safetensors"))
+    write_config(os.path.join(model_dir, "unet", "config.json"), wonder3d_unet_config(unet))
+
+    vae = AutoencoderKL(
+        down_block_types=["DownEncoderBlock2D"] * 3,
+        up_block_types=["UpDecoderBlock2D"] * 3,
+        block_out_channels=[8, 16, 16],
+        layers_per_block=1,
+        latent_channels=4,
+        norm_num_groups=4,
+        sample_size=32,
+    ).eval()
+    perturb_norms(vae)
+    to_f16_values(vae)
+    save_file(state(vae, torch.float16), os.path.join(model_dir, "vae", "diffusion_pytorch_model.safetensors"))
+    write_config(os.path.join(model_dir, "vae", "config.json"), dict(vae.config))
+
+    clip_config = CLIPVisionConfig(
+        hidden_size=32,
+        intermediate_size=48,
+        projection_dim=16,
+        num_hidden_layers=2,
+        num_attention_heads=4,
+        image_size=32,
+        patch_size=8,
+        hidden_act="quick_gelu",
+    )
+    clip = CLIPVisionModelWithProjection(clip_config).eval()
+    perturb_norms(clip)
+    save_file(state(clip), os.path.join(model_dir, "image_encoder", "model.safetensors"))
+    clip_config.save_pretrained(os.path.join(model_dir, "image_encoder"))
+    processor = CLIPImageProcessor(size={"shortest_edge": 32}, crop_size={"height": 32, "width": 32})
+    processor.save_pretrained(os.path.join(model_dir, "feature_extractor"))
+    write_config(os.path.join(model_dir, "scheduler", "scheduler_config.json"), dict(_class_name="DDIMScheduler", **SD))
+    write_config(
+        os.path.join(model_dir, "model_index.json"),
+        {
+            "_class_name": "MVDiffusionImagePipeline",
+            "feature_extractor": ["transformers", "CLIPImageProcessor"],
+            "image_encoder": ["transformers", "CLIPVisionModelWithProjection"],
+            "scheduler": ["diffusers", "DDIMScheduler"],
+            "unet": ["mv_diffusion_30.models.unet_mv2d_condition", "UNetMV2DConditionModel"],
+            "vae": ["diffusers", "AutoencoderKL"],
+        },
+    )
+
+    # One forward of the 12-image batch [normal x 6 views, colour x 6 views] per camera type.
+    n = 2 * NUM_VIEWS
+    sample = torch.randn(n, 8, 8, 8)
+    context = torch.randn(n, 1, 16)
+    timesteps = torch.tensor([421.0])
+    io = {"sample": sample, "context": context, "timesteps": timesteps}
+    for camera in ["ortho", "persp"]:
+        labels = torch.cat([switcher_labels("normal", camera), switcher_labels("colour", camera)])
+        io[f"class_labels_{camera}"] = labels
+        io[f"out_{camera}"] = unet(sample, timesteps, encoder_hidden_states=context, class_labels=labels).sample
+    save(io, os.path.join(io_dir, "unet_io.safetensors"))
+
+    # The 5-step guided pipeline on a 32x32 white-background input (8-bit values).
+    rng = np.random.default_rng(2)
+    image_u8 = np.full((32, 32, 3), 255, dtype=np.uint8)
+    image_u8[6:26, 9:23] = rng.integers(0, 256, size=(20, 14, 3), dtype=np.uint8)
+    noise = torch.randn(NUM_VIEWS, 4, 8, 8)
+    embeds, cond_latent, latents, decoded = tiny_pipeline(unet, vae, clip, processor, image_u8, noise, 5, 2.0, "ortho")
+    save(
+        {
+            "image": torch.from_numpy(image_u8.astype(np.float32) / 255.0),
+            "noise": noise,
+            "embeds": embeds,
+            "cond_latent": cond_latent,
+            "latents": latents,
+            "decoded": decoded,
+        },
+        os.path.join(io_dir, "pipeline_io.safetensors"),
+    )
+
+
 def main():
     os.makedirs(OUT, exist_ok=True)
     unet = unet_fixture()
     vae_fixture()
     clip_fixture()
     scheduler_fixture(unet)
+    multiview_fixtures()
     total = sum(os.path.getsize(os.path.join(r, f)) for r, _, fs in os.walk(OUT) for f in fs)
     print(f"fixtures written to {os.path.normpath(OUT)}: {total / 1e6:.2f} MB")
     if total > 5e6:

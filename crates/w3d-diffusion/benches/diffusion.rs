@@ -1,7 +1,11 @@
 //! `cargo xtask bench diffusion`: the real-size UNet forward (batch 2 × 8 × 32 × 32, the
 //! Wonder3D base config, random weights) on flex and ndarray, and the UNet's convolution
-//! layers with the backend `conv2d` (direct) against im2col + GEMM. The xtask then times
-//! diffusers on torch CPU with the same config and input (xtask/python/bench_diffusion_torch.py).
+//! layers with the backend `conv2d` (direct) against im2col + GEMM, and one guided denoising
+//! step of the real-size multi-view cross-domain UNet (12 images at 32×32 latents, 24 UNet
+//! images with guidance, `configs/wonder3d/unet_mv`) on ndarray — only with
+//! `W3D_BENCH_MV_STEP=1` (`W3D_BENCH_MV_STEP=1 cargo bench -p w3d-diffusion --bench diffusion --
+//! mv_step`): one iteration takes minutes on 2 cores and the models need ~8 GiB. The xtask then times diffusers on torch CPU with the same config and
+//! input as the single-view forward (xtask/python/bench_diffusion_torch.py).
 #![allow(missing_docs)] // criterion_group! generates an undocumented function
 
 use std::path::PathBuf;
@@ -10,11 +14,17 @@ use std::time::Duration;
 use burn::module::Param;
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
 use w3d_diffusion::nn::{Conv2d, ConvAlgorithm};
-use w3d_diffusion::{Device, UNet, UNetConfig, gaussian_noise};
+use w3d_diffusion::{
+    ClipVision, ClipVisionConfig, Conditioning, Device, MultiViewPipeline, SampleOptions, SchedulerConfig, UNet,
+    UNetConfig, Vae, VaeConfig, gaussian_noise,
+};
+
+fn config_path(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs/wonder3d").join(name)
+}
 
 fn unet_config() -> UNetConfig {
-    let path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs/wonder3d/unet/config.json");
-    UNetConfig::from_file(path).expect("real UNet config")
+    UNetConfig::from_file(config_path("unet/config.json")).expect("real UNet config")
 }
 
 fn devices() -> Vec<(&'static str, Device)> {
@@ -82,5 +92,35 @@ fn conv_layers(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, conv_layers, unet_forward);
+/// One guided DDIM step of the real-size multi-view pipeline (random weights) on ndarray.
+fn multiview_step(c: &mut Criterion) {
+    if std::env::var_os("W3D_BENCH_MV_STEP").is_none() {
+        return;
+    }
+    let mut group = c.benchmark_group("mv_step_b12_cfg_32x32");
+    group.sample_size(10).measurement_time(Duration::from_secs(60)).warm_up_time(Duration::from_millis(1));
+    let device = w3d_diffusion::ndarray_device();
+    let unet = UNet::random(&UNetConfig::from_file(config_path("unet_mv/config.json")).expect("config"), 1, &device);
+    let vae = Vae::random(&VaeConfig::from_file(config_path("vae/config.json")).expect("config"), 2, &device);
+    let clip_config = ClipVisionConfig::from_file(config_path("image_encoder/config.json")).expect("config");
+    let clip = ClipVision::random(&clip_config, 3, &device);
+    let scheduler = SchedulerConfig::from_file(config_path("scheduler/scheduler_config.json")).expect("config");
+    let pipeline = MultiViewPipeline::new(unet.expect("unet"), vae.expect("vae"), clip.expect("clip"), scheduler)
+        .expect("pipeline");
+    let cond = Conditioning {
+        embeds: gaussian_noise([1, 768], 4, &device),
+        latent: gaussian_noise([1, 4, 32, 32], 5, &device),
+    };
+    let options = SampleOptions { steps: 1, guidance: 2.0, eta: 1.0, ..SampleOptions::default() };
+    let noise = pipeline.initial_noise(6, &device);
+    group.bench_function("ndarray", |b| {
+        b.iter(|| {
+            let latents = pipeline.sample_from(noise.clone(), &cond, &options, &mut |_, _| {}).expect("step");
+            latents.into_data().try_to_vec::<f32>().expect("values")
+        })
+    });
+    group.finish();
+}
+
+criterion_group!(benches, conv_layers, unet_forward, multiview_step);
 criterion_main!(benches);

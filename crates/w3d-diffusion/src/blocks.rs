@@ -7,7 +7,7 @@ use burn::tensor::Tensor;
 use burn::tensor::activation::{gelu, silu};
 
 use crate::nn::{Conv2d, GroupNorm, LayerNorm, Linear, multi_head_attention};
-use crate::weights::ParamSource;
+use crate::weights::{Init, ParamSource};
 
 /// `ResnetBlock2D`: GroupNorm → SiLU → conv → (+ time embedding) → GroupNorm → SiLU → conv,
 /// plus a (1x1-projected) skip connection, divided by `output_scale`.
@@ -133,11 +133,25 @@ impl Attention {
         heads: usize,
         bias: bool,
     ) -> Self {
+        Self::load_with_out_init(p, key, dim, context_dim, heads, bias, Init::Uniform { fan_in: dim })
+    }
+
+    /// As `load`, with `out_init` for the output projection's weight when the model is
+    /// randomly initialised (zeros for Wonder3D's fresh cross-domain attention).
+    fn load_with_out_init(
+        p: &mut ParamSource,
+        key: &str,
+        dim: usize,
+        context_dim: usize,
+        heads: usize,
+        bias: bool,
+        out_init: Init,
+    ) -> Self {
         Self {
             to_q: Linear::load(p, &format!("{key}.to_q"), dim, dim, bias),
             to_k: Linear::load(p, &format!("{key}.to_k"), context_dim, dim, bias),
             to_v: Linear::load(p, &format!("{key}.to_v"), context_dim, dim, bias),
-            to_out: Linear::load(p, &format!("{key}.to_out.0"), dim, dim, true),
+            to_out: Linear::load_init(p, &format!("{key}.to_out.0"), dim, dim, true, out_init),
             heads,
         }
     }
@@ -153,34 +167,62 @@ impl Attention {
 }
 
 /// `BasicTransformerBlock`: pre-norm self-attention, cross-attention and GEGLU feed-forward,
-/// each with a residual connection.
+/// each with a residual connection; as Wonder3D's `BasicMVTransformerBlock` (design reference
+/// `wonder3d.md` §1.3) the self-attention may be multi-view and a cross-domain attention
+/// (`attn_joint_mid`) may follow it.
 #[derive(Module, Debug)]
 pub struct TransformerBlock {
     norm1: LayerNorm,
     attn1: Attention,
+    norm_joint_mid: Option<LayerNorm>,
+    attn_joint_mid: Option<Attention>,
     norm2: LayerNorm,
     attn2: Attention,
     norm3: LayerNorm,
     ff_proj: Linear,
     ff_out: Linear,
+    /// Images per multi-view group (1: plain self-attention).
+    views: usize,
 }
 
 impl TransformerBlock {
-    fn load(p: &mut ParamSource, key: &str, dim: usize, heads: usize, cross_dim: usize) -> Self {
+    fn load(p: &mut ParamSource, key: &str, s: &TransformerShape) -> Self {
+        let (dim, heads) = (s.channels, s.heads);
         let inner = 4 * dim;
+        let norm1 = LayerNorm::load(p, &format!("{key}.norm1"), dim, 1e-5);
+        let attn1 = Attention::load(p, &format!("{key}.attn1"), dim, dim, heads, false);
+        // Wonder3D: fresh cross-domain attention starts as the identity (zero output weight).
+        let (norm_joint_mid, attn_joint_mid) = if s.cross_domain {
+            let norm = LayerNorm::load(p, &format!("{key}.norm_joint_mid"), dim, 1e-5);
+            let attn =
+                Attention::load_with_out_init(p, &format!("{key}.attn_joint_mid"), dim, dim, heads, false, Init::Zeros);
+            (Some(norm), Some(attn))
+        } else {
+            (None, None)
+        };
         Self {
-            norm1: LayerNorm::load(p, &format!("{key}.norm1"), dim, 1e-5),
-            attn1: Attention::load(p, &format!("{key}.attn1"), dim, dim, heads, false),
+            norm1,
+            attn1,
+            norm_joint_mid,
+            attn_joint_mid,
             norm2: LayerNorm::load(p, &format!("{key}.norm2"), dim, 1e-5),
-            attn2: Attention::load(p, &format!("{key}.attn2"), dim, cross_dim, heads, false),
+            attn2: Attention::load(p, &format!("{key}.attn2"), dim, s.cross_dim, heads, false),
             norm3: LayerNorm::load(p, &format!("{key}.norm3"), dim, 1e-5),
             ff_proj: Linear::load(p, &format!("{key}.ff.net.0.proj"), dim, 2 * inner, true),
             ff_out: Linear::load(p, &format!("{key}.ff.net.2"), inner, dim, true),
+            views: s.views,
         }
     }
 
+    /// `x [n, tokens, dim]`; with multi-view attention `n` is a multiple of the view count,
+    /// with cross-domain attention `n` is even (`[normal half, colour half]`).
     fn forward(&self, x: Tensor<3>, context: &Tensor<3>) -> Tensor<3> {
-        let x = self.attn1.forward(self.norm1.forward(x.clone()), None) + x;
+        let attn1 = &self.attn1;
+        let x = within_views(self.norm1.forward(x.clone()), self.views, |t| attn1.forward(t, None)) + x;
+        let x = match (&self.norm_joint_mid, &self.attn_joint_mid) {
+            (Some(norm), Some(attn)) => across_domains(norm.forward(x.clone()), |t| attn.forward(t, None)) + x,
+            _ => x,
+        };
         let x = self.attn2.forward(self.norm2.forward(x.clone()), Some(context)) + x;
         let h = self.ff_proj.forward(self.norm3.forward(x.clone()));
         let [b, t, two_inner] = h.dims();
@@ -189,6 +231,31 @@ impl TransformerBlock {
         let gate = h.slice([0..b, 0..t, inner..two_inner]);
         self.ff_out.forward(hidden * gelu(gate)) + x
     }
+}
+
+/// Applies the token-sequence map `f` to the tokens of each group of `views` consecutive
+/// images as one sequence: `[n, t, c]` → `[n / views, views · t, c]` → back. With a
+/// self-attention as `f`, every view's queries attend over the keys of all views of its group
+/// (Wonder3D's multi-view attention, whose K/V are reshaped to the group and repeated per view).
+fn within_views(x: Tensor<3>, views: usize, f: impl FnOnce(Tensor<3>) -> Tensor<3>) -> Tensor<3> {
+    if views == 1 {
+        return f(x);
+    }
+    let [n, t, c] = x.dims();
+    f(x.reshape([n / views, views * t, c])).reshape([n, t, c])
+}
+
+/// Applies the token-sequence map `f` to the tokens of image `i` of the first half of the
+/// batch and image `i` of the second half as one sequence (`[n, t, c]` → `[n / 2, 2t, c]` →
+/// back). With a self-attention as `f`, both domains' queries attend over the concatenated
+/// normal and colour tokens of the same view (Wonder3D's cross-domain attention).
+fn across_domains(x: Tensor<3>, f: impl FnOnce(Tensor<3>) -> Tensor<3>) -> Tensor<3> {
+    let [n, t, c] = x.dims();
+    let half = n / 2;
+    let paired: Tensor<4> = x.reshape([2, half, t, c]).swap_dims(0, 1);
+    let out = f(paired.reshape([half, 2 * t, c]));
+    let out: Tensor<4> = out.reshape([half, 2, t, c]).swap_dims(0, 1);
+    out.reshape([n, t, c])
 }
 
 /// The transformer's in/out projection: a 1x1 convolution or a linear layer.
@@ -217,6 +284,10 @@ pub(crate) struct TransformerShape {
     pub cross_dim: usize,
     pub groups: usize,
     pub linear_projection: bool,
+    /// Images per multi-view attention group (1: plain self-attention).
+    pub views: usize,
+    /// Whether the blocks have the cross-domain attention.
+    pub cross_domain: bool,
 }
 
 impl SpatialTransformer {
@@ -232,9 +303,8 @@ impl SpatialTransformer {
         };
         let norm = GroupNorm::load(p, &format!("{key}.norm"), s.groups, c, 1e-6);
         let proj_in = proj(p, "proj_in");
-        let blocks = (0..s.layers)
-            .map(|l| TransformerBlock::load(p, &format!("{key}.transformer_blocks.{l}"), c, s.heads, s.cross_dim))
-            .collect();
+        let blocks =
+            (0..s.layers).map(|l| TransformerBlock::load(p, &format!("{key}.transformer_blocks.{l}"), &s)).collect();
         let proj_out = proj(p, "proj_out");
         Self { norm, proj_in, blocks, proj_out }
     }

@@ -61,11 +61,12 @@ impl ClipVision {
         Ok(model)
     }
 
-    /// Loads `config.json` and `model.safetensors` from an `image_encoder/` folder.
+    /// Loads `config.json` and `model.safetensors` (or `model.fp16.safetensors`) from an
+    /// `image_encoder/` folder.
     pub fn from_dir(dir: impl AsRef<Path>, device: &Device) -> Result<Self, Error> {
         let dir = dir.as_ref();
         let config = ClipVisionConfig::from_file(dir.join("config.json"))?;
-        Self::load(&config, dir.join("model.safetensors"), device)
+        Self::load(&config, crate::weights::find_weights(dir, "model")?, device)
     }
 
     /// `config` with seeded random weights.

@@ -86,12 +86,15 @@ pub struct UNetConfig {
     /// `downscale_freq_shift` of the timestep embedding.
     #[serde(default)]
     pub freq_shift: f64,
-    /// Down block kinds: `CrossAttnDownBlock2D` or `DownBlock2D`.
+    /// Down block kinds: `CrossAttnDownBlock2D`, Wonder3D's multi-view
+    /// `CrossAttnDownBlockMV2D`, or `DownBlock2D` (no attention).
     pub down_block_types: Vec<String>,
-    /// Mid block kind: `UNetMidBlock2DCrossAttn`.
+    /// Mid block kind: `UNetMidBlock2DCrossAttn` or the multi-view `UNetMidBlockMV2DCrossAttn`
+    /// (absent: multi-view when the down blocks are, as Wonder3D's `UNetMV2DConditionModel`).
     #[serde(default)]
     pub mid_block_type: Option<String>,
-    /// Up block kinds: `CrossAttnUpBlock2D` or `UpBlock2D`.
+    /// Up block kinds: `CrossAttnUpBlock2D`, the multi-view `CrossAttnUpBlockMV2D`, or
+    /// `UpBlock2D`.
     pub up_block_types: Vec<String>,
     /// Output channels of each down level.
     pub block_out_channels: Vec<usize>,
@@ -166,6 +169,30 @@ pub struct UNetConfig {
     /// Only `false`/absent supported (f32 attention is already full precision).
     #[serde(default)]
     pub upcast_attention: Option<bool>,
+    /// Wonder3D: views per object in the batch (absent: 1). In the multi-view blocks every
+    /// group of `num_views` consecutive images is one object (and one domain), and the
+    /// self-attention of each image attends over the tokens of its whole group.
+    #[serde(default)]
+    pub num_views: Option<usize>,
+    /// Wonder3D: multi-view self-attention in the multi-view blocks (absent: true, the
+    /// `UNetMV2DConditionModel` default).
+    #[serde(default = "default_true")]
+    pub multiview_attention: bool,
+    /// Wonder3D: the cross-domain attention (`attn_joint_mid` after the self-attention) in
+    /// every multi-view transformer block. The batch is then `[normal half, colour half]`.
+    #[serde(default)]
+    pub cd_attention_mid: bool,
+    /// Wonder3D: cross-domain attention after the feed-forward (unsupported: off in every
+    /// shipped config).
+    #[serde(default)]
+    pub cd_attention_last: bool,
+    /// Wonder3D: sparse multi-view attention (unsupported: off in every shipped config).
+    #[serde(default)]
+    pub sparse_mv_attention: bool,
+    /// Wonder3D: joint multi-view + cross-domain attention (unsupported: off in every shipped
+    /// config).
+    #[serde(default)]
+    pub mvcd_attention: bool,
     /// Options this implementation only supports at their diffusers default (`null`, `false`,
     /// `1.0` or `"default"`): `time_embedding_dim`, `time_embedding_act_fn`, `timestep_post_act`,
     /// `num_class_embeds`, `attention_type`, `resnet_skip_time_act`, `resnet_out_scale_factor`,
@@ -212,19 +239,40 @@ impl UNetConfig {
             ));
         }
         for (i, t) in self.down_block_types.iter().enumerate() {
-            if t != "CrossAttnDownBlock2D" && t != "DownBlock2D" {
-                return Err(unsupported(&format!("down_block_types[{i}]"), t, "CrossAttnDownBlock2D or DownBlock2D"));
+            if !matches!(t.as_str(), "CrossAttnDownBlock2D" | "CrossAttnDownBlockMV2D" | "DownBlock2D") {
+                return Err(unsupported(
+                    &format!("down_block_types[{i}]"),
+                    t,
+                    "CrossAttnDownBlock2D, CrossAttnDownBlockMV2D or DownBlock2D",
+                ));
             }
         }
         for (i, t) in self.up_block_types.iter().enumerate() {
-            if t != "CrossAttnUpBlock2D" && t != "UpBlock2D" {
-                return Err(unsupported(&format!("up_block_types[{i}]"), t, "CrossAttnUpBlock2D or UpBlock2D"));
+            if !matches!(t.as_str(), "CrossAttnUpBlock2D" | "CrossAttnUpBlockMV2D" | "UpBlock2D") {
+                return Err(unsupported(
+                    &format!("up_block_types[{i}]"),
+                    t,
+                    "CrossAttnUpBlock2D, CrossAttnUpBlockMV2D or UpBlock2D",
+                ));
             }
         }
         if let Some(m) = &self.mid_block_type
             && m != "UNetMidBlock2DCrossAttn"
+            && m != "UNetMidBlockMV2DCrossAttn"
         {
-            return Err(unsupported("mid_block_type", m, "UNetMidBlock2DCrossAttn"));
+            return Err(unsupported("mid_block_type", m, "UNetMidBlock2DCrossAttn or UNetMidBlockMV2DCrossAttn"));
+        }
+        if self.num_views == Some(0) {
+            return Err(Error::invalid("num_views", "at least 1"));
+        }
+        for (field, on) in [
+            ("cd_attention_last", self.cd_attention_last),
+            ("sparse_mv_attention", self.sparse_mv_attention),
+            ("mvcd_attention", self.mvcd_attention),
+        ] {
+            if on {
+                return Err(unsupported(field, true, "false"));
+            }
         }
         if self.act_fn != "silu" {
             return Err(unsupported("act_fn", &self.act_fn, "silu"));
@@ -313,6 +361,25 @@ impl UNetConfig {
         match &self.transformer_layers_per_block {
             None => Ok(1),
             Some(t) => t.get("transformer_layers_per_block", index, self.block_out_channels.len()),
+        }
+    }
+
+    /// Views per object in the batch (`num_views`, 1 when absent).
+    pub fn views(&self) -> usize {
+        self.num_views.unwrap_or(1)
+    }
+
+    /// Whether block kind `kind` (a down, mid or up block type) is one of Wonder3D's
+    /// multi-view variants.
+    pub fn is_multiview_block(kind: &str) -> bool {
+        kind.contains("MV2D")
+    }
+
+    /// Whether the mid block is the multi-view variant (see `mid_block_type`).
+    pub fn multiview_mid_block(&self) -> bool {
+        match &self.mid_block_type {
+            Some(kind) => Self::is_multiview_block(kind),
+            None => self.down_block_types.iter().any(|k| Self::is_multiview_block(k)),
         }
     }
 

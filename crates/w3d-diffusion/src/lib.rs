@@ -2,7 +2,10 @@
 //! (`UNet2DConditionModel`, with the projection class embedding Wonder3D's switchers use), the
 //! `AutoencoderKL` VAE, the CLIP vision encoder with projection and its preprocessing, DDIM
 //! sampling with classifier-free guidance and DDIM inversion (exactly as diffusers), and
-//! streaming `.safetensors` loading with the diffusers / transformers key names.
+//! streaming `.safetensors` loading with the diffusers / transformers key names. The UNet is
+//! also Wonder3D++'s multi-view cross-domain `UNetMV2DConditionModel` (config fields
+//! `num_views`, `cd_attention_mid`), and [`MultiViewPipeline`] turns one RGBA image into 6 views
+//! × {normal, colour} and a `w3d_core::ViewSet` ([`multiview`]).
 //!
 //! Configs deserialize the `config.json` files of a diffusers checkpoint directory as they are;
 //! weights load from f32, f16 or bf16 safetensors and every missing, unexpected or misshaped key
@@ -29,6 +32,7 @@
 pub mod blocks;
 pub mod clip;
 pub mod config;
+pub mod multiview;
 pub mod nn;
 pub mod scheduler;
 pub mod unet;
@@ -38,6 +42,9 @@ pub mod weights;
 pub use burn::tensor::{Device, Tensor, TensorData};
 pub use clip::{CLIP_MEAN, CLIP_STD, ClipVision, preprocess as clip_preprocess};
 pub use config::{ClipVisionConfig, PerBlock, SchedulerConfig, UNetConfig, VaeConfig};
+pub use multiview::{
+    CameraType, Conditioning, Domain, GeneratedViews, MultiViewPipeline, SampleOptions, prepare_input, switcher_labels,
+};
 pub use scheduler::{
     DdimInverseScheduler, DdimScheduler, Prediction, classifier_free_guidance, ddim_invert, ddim_sample, gaussian_noise,
 };

@@ -23,7 +23,20 @@ pub struct Linear {
 
 impl Linear {
     pub(crate) fn load(p: &mut ParamSource, key: &str, d_in: usize, d_out: usize, bias: bool) -> Self {
-        let w = p.values(&format!("{key}.weight"), &[d_out, d_in], Init::Uniform { fan_in: d_in });
+        Self::load_init(p, key, d_in, d_out, bias, Init::Uniform { fan_in: d_in })
+    }
+
+    /// As `load`, with `weight_init` for the weight of a randomly initialised model (the bias
+    /// keeps PyTorch's default).
+    pub(crate) fn load_init(
+        p: &mut ParamSource,
+        key: &str,
+        d_in: usize,
+        d_out: usize,
+        bias: bool,
+        weight_init: Init,
+    ) -> Self {
+        let w = p.values(&format!("{key}.weight"), &[d_out, d_in], weight_init);
         let mut t = vec![0.0f32; w.len()];
         for o in 0..d_out {
             for i in 0..d_in {
@@ -234,13 +247,34 @@ impl LayerNorm {
     }
 }
 
+/// Largest attention score matrix (`batch · heads · queries · keys` values) computed at once;
+/// longer query sequences are processed in chunks of queries (the multi-view attention at
+/// 32×32 latents has 6 × 1024 keys per query, and backends without a tiled kernel, such as
+/// ndarray, materialise the whole score matrix).
+pub const ATTENTION_MAX_SCORES: usize = 1 << 25;
+
 /// Scaled dot-product attention over token sequences: `q [b, tq, h·d]`, `k`/`v [b, tk, h·d]`
-/// split into `heads` heads, softmax scale `1/√d`; returns `[b, tq, h·d]`.
+/// split into `heads` heads, softmax scale `1/√d`; returns `[b, tq, h·d]`. Queries are
+/// processed in chunks so that at most [`ATTENTION_MAX_SCORES`] scores exist at a time.
 pub fn multi_head_attention(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usize) -> Tensor<3> {
     let [b, tq, width] = q.dims();
     let tk = k.dims()[1];
     let d = width / heads;
     let split = |t: Tensor<3>, len: usize| t.reshape([b, len, heads, d]).swap_dims(1, 2);
-    let o = attention(split(q, tq), split(k, tk), split(v, tk), None, None, AttentionModuleOptions::default());
+    let (q, k, v) = (split(q, tq), split(k, tk), split(v, tk));
+    let chunk = (ATTENTION_MAX_SCORES / (b * heads * tk).max(1)).max(1);
+    let o = if chunk >= tq {
+        attention(q, k, v, None, None, AttentionModuleOptions::default())
+    } else {
+        let parts = (0..tq)
+            .step_by(chunk)
+            .map(|start| {
+                let end = (start + chunk).min(tq);
+                let q = q.clone().slice(s![.., .., start..end, ..]);
+                attention(q, k.clone(), v.clone(), None, None, AttentionModuleOptions::default())
+            })
+            .collect();
+        Tensor::cat(parts, 2)
+    };
     o.swap_dims(1, 2).reshape([b, tq, width])
 }

@@ -5,6 +5,20 @@
 //! per image, conditioning tokens `[n, tokens, cross_attention_dim]` and, with
 //! `class_embed_type = "projection"`, class labels `[n, projection_class_embeddings_input_dim]`.
 //! Output: the prediction `[n, out_channels, h, w]`.
+//!
+//! Wonder3D's `UNetMV2DConditionModel` is the same network with multi-view block types
+//! (`CrossAttnDownBlockMV2D`, `UNetMidBlockMV2DCrossAttn`, `CrossAttnUpBlockMV2D`) and the
+//! config fields `num_views` and `cd_attention_mid` (design reference `wonder3d.md` §1.2-§1.3):
+//! - batch layout: `[normal half, colour half]` when `cd_attention_mid`, each half made of
+//!   groups of `num_views` consecutive images (one object, views in rig order);
+//! - multi-view attention: each image's self-attention attends over the tokens of all images
+//!   of its group (no new weights);
+//! - cross-domain attention (`attn_joint_mid`, `norm_joint_mid`): after the self-attention,
+//!   image `i` of each half attends over the tokens of image `i` of both halves. Random
+//!   (fresh-training) initialisation zeroes its output projection's weight, so it starts as
+//!   the identity;
+//! - the domain / camera switchers enter as the projection class embedding (see
+//!   [`crate::multiview::switcher_labels`]).
 
 use std::path::Path;
 
@@ -65,12 +79,12 @@ impl UNet {
         Ok(unet)
     }
 
-    /// Loads `unet/config.json` and `unet/diffusion_pytorch_model.safetensors` from a diffusers
-    /// checkpoint directory's `unet/` folder.
+    /// Loads `config.json` and `diffusion_pytorch_model.safetensors` (or its `.fp16.safetensors`
+    /// variant) from a diffusers checkpoint directory's `unet/` folder.
     pub fn from_dir(dir: impl AsRef<Path>, device: &Device) -> Result<Self, Error> {
         let dir = dir.as_ref();
         let config = UNetConfig::from_file(dir.join("config.json"))?;
-        Self::load(&config, dir.join("diffusion_pytorch_model.safetensors"), device)
+        Self::load(&config, crate::weights::find_weights(dir, "diffusion_pytorch_model")?, device)
     }
 
     /// `config` with seeded random weights (for shape, speed and memory checks at real sizes).
@@ -91,7 +105,7 @@ impl UNet {
         let (groups, eps) = (c.norm_num_groups, c.norm_eps);
         let resnet =
             |c_in, c_out, scale| ResnetShape { c_in, c_out, temb: Some(temb), groups, eps, output_scale: scale };
-        let transformer = |channels, level: usize| -> Result<TransformerShape, Error> {
+        let transformer = |channels, level: usize, multiview: bool| -> Result<TransformerShape, Error> {
             Ok(TransformerShape {
                 channels,
                 heads: c.heads(level)?,
@@ -99,6 +113,8 @@ impl UNet {
                 cross_dim: c.cross_attention_dim,
                 groups,
                 linear_projection: c.use_linear_projection,
+                views: if multiview && c.multiview_attention { c.views() } else { 1 },
+                cross_domain: multiview && c.cd_attention_mid,
             })
         };
         let conv_in = Conv2d::load(p, "conv_in", c.in_channels, ch[0], 3, 1, 1, true);
@@ -118,11 +134,11 @@ impl UNet {
             for j in 0..c.layers_per_block {
                 let c_in = if j == 0 { c_prev } else { c_out };
                 resnets.push(ResnetBlock::load(p, &format!("{key}.resnets.{j}"), resnet(c_in, c_out, 1.0)));
-                if kind == "CrossAttnDownBlock2D" {
+                if kind.starts_with("CrossAttn") {
                     attentions.push(SpatialTransformer::load(
                         p,
                         &format!("{key}.attentions.{j}"),
-                        transformer(c_out, i)?,
+                        transformer(c_out, i, UNetConfig::is_multiview_block(kind))?,
                     ));
                 }
             }
@@ -138,7 +154,11 @@ impl UNet {
             ResnetBlock::load(p, "mid_block.resnets.0", resnet(c_mid, c_mid, scale)),
             ResnetBlock::load(p, "mid_block.resnets.1", resnet(c_mid, c_mid, scale)),
         ];
-        let mid_attention = SpatialTransformer::load(p, "mid_block.attentions.0", transformer(c_mid, levels - 1)?);
+        let mid_attention = SpatialTransformer::load(
+            p,
+            "mid_block.attentions.0",
+            transformer(c_mid, levels - 1, c.multiview_mid_block())?,
+        );
 
         let mut up_blocks = Vec::with_capacity(levels);
         let reversed: Vec<usize> = ch.iter().rev().copied().collect();
@@ -154,12 +174,12 @@ impl UNet {
                 let skip = if j + 1 == layers { c_skip_in } else { c_out };
                 let c_in = if j == 0 { c_prev_out } else { c_out };
                 resnets.push(ResnetBlock::load(p, &format!("{key}.resnets.{j}"), resnet(c_in + skip, c_out, 1.0)));
-                if kind == "CrossAttnUpBlock2D" {
+                if kind.starts_with("CrossAttn") {
                     let level = levels - 1 - i;
                     attentions.push(SpatialTransformer::load(
                         p,
                         &format!("{key}.attentions.{j}"),
-                        transformer(c_out, level)?,
+                        transformer(c_out, level, UNetConfig::is_multiview_block(kind))?,
                     ));
                 }
             }
@@ -226,6 +246,17 @@ impl UNet {
         let multiple = 1 << (c.block_out_channels.len() - 1);
         if h == 0 || w == 0 || !h.is_multiple_of(multiple) || !w.is_multiple_of(multiple) {
             return Err(Error::invalid("sample", format!("height and width multiples of {multiple} (found {h}x{w})")));
+        }
+        let views = if c.multiview_attention { c.views() } else { 1 };
+        let group = if c.cd_attention_mid { 2 * views } else { views };
+        if !n.is_multiple_of(group) {
+            return Err(Error::invalid(
+                "sample",
+                format!(
+                    "a batch of whole groups of {group} images ({}{views} views each; found {n})",
+                    if c.cd_attention_mid { "normal and colour halves of " } else { "" }
+                ),
+            ));
         }
         let [cn, _, cw] = context.dims();
         if cn != n || cw != c.cross_attention_dim {

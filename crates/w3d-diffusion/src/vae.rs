@@ -114,11 +114,12 @@ impl Vae {
         Ok(vae)
     }
 
-    /// Loads `config.json` and `diffusion_pytorch_model.safetensors` from a `vae/` folder.
+    /// Loads `config.json` and `diffusion_pytorch_model.safetensors` (or its `.fp16.safetensors`
+    /// variant) from a `vae/` folder.
     pub fn from_dir(dir: impl AsRef<Path>, device: &Device) -> Result<Self, Error> {
         let dir = dir.as_ref();
         let config = VaeConfig::from_file(dir.join("config.json"))?;
-        Self::load(&config, dir.join("diffusion_pytorch_model.safetensors"), device)
+        Self::load(&config, crate::weights::find_weights(dir, "diffusion_pytorch_model")?, device)
     }
 
     /// `config` with seeded random weights.

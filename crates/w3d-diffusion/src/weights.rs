@@ -24,6 +24,30 @@ pub struct SafetensorsFile {
     tensors: BTreeMap<String, TensorInfo>,
 }
 
+/// The weights file `<stem>.safetensors` (or the diffusers fp16 variant
+/// `<stem>.fp16.safetensors`) in a model folder such as `unet/`. A folder holding only the
+/// PyTorch pickle `<stem>.bin` gets an error saying how to convert it (pickles are not read).
+pub fn find_weights(dir: &Path, stem: &str) -> Result<PathBuf, Error> {
+    for name in [format!("{stem}.safetensors"), format!("{stem}.fp16.safetensors")] {
+        let path = dir.join(name);
+        if path.is_file() {
+            return Ok(path);
+        }
+    }
+    let expected = format!("{stem}.safetensors or {stem}.fp16.safetensors");
+    let bin = dir.join(format!("{stem}.bin"));
+    if bin.is_file() {
+        return Err(Error::format(
+            &bin,
+            "weights",
+            format!(
+                "{expected} (PyTorch .bin pickles are not read; convert once with `python -c \"import torch, safetensors.torch as s; s.save_file(torch.load('{stem}.bin'), '{stem}.safetensors')\"` in that folder)"
+            ),
+        ));
+    }
+    Err(Error::format(dir, "weights", format!("a weights file {expected}")))
+}
+
 /// Largest header accepted (the format's own limit).
 const MAX_HEADER: u64 = 100_000_000;
 

@@ -1,12 +1,16 @@
 //! The real-size Wonder3D base configs parse; the real-size models instantiate and run one
-//! forward within 8 GiB peak memory (ignored by default: slow; run with
-//! `cargo test --release -p w3d-diffusion --test full_size -- --ignored --nocapture`).
+//! forward within 8 GiB peak memory, and one guided denoising step of the real-size
+//! multi-view UNet (12 images at 32×32 latents, 24 UNet images with guidance) is timed with its
+//! peak memory on ndarray and flex (ignored by default: slow; run with
+//! `cargo test --release -p w3d-diffusion --test full_size -- --ignored --nocapture --test-threads 1`).
 
 use std::path::PathBuf;
 use std::time::Instant;
 
+use burn::module::Module;
 use w3d_diffusion::{
-    ClipVision, ClipVisionConfig, DdimScheduler, SchedulerConfig, Tensor, UNet, UNetConfig, Vae, VaeConfig,
+    ClipVision, ClipVisionConfig, Conditioning, DdimScheduler, MultiViewPipeline, SampleOptions, SchedulerConfig,
+    Tensor, UNet, UNetConfig, Vae, VaeConfig, gaussian_noise,
 };
 
 fn config(path: &str) -> PathBuf {
@@ -24,6 +28,8 @@ fn peak_rss() -> u64 {
 fn real_configs_parse() {
     let unet = UNetConfig::from_file(config("unet/config.json")).unwrap();
     assert_eq!((unet.heads(0).unwrap(), unet.time_embed_dim(), unet.in_channels), (8, 1280, 8));
+    let mv = UNetConfig::from_file(config("unet_mv/config.json")).unwrap();
+    assert_eq!((mv.views(), mv.cd_attention_mid, mv.multiview_mid_block()), (6, true, true));
     let vae = VaeConfig::from_file(config("vae/config.json")).unwrap();
     assert_eq!(vae.downscale(), 8);
     let clip = ClipVisionConfig::from_file(config("image_encoder/config.json")).unwrap();
@@ -74,4 +80,50 @@ fn real_size_models_run_within_8_gib() {
     assert_eq!(embeds.dims(), [1, 768]);
     println!("clip 224² {:.1} s, peak RSS {:.2} GiB", t.elapsed().as_secs_f64(), gib(peak_rss()));
     assert!(peak_rss() < 8 << 30, "peak RSS {:.2} GiB", gib(peak_rss()));
+}
+
+/// Resets the peak-RSS counter (`VmHWM`) to the current RSS.
+fn reset_peak_rss() {
+    std::fs::write("/proc/self/clear_refs", "5").unwrap();
+}
+
+#[test]
+#[ignore = "slow: real-size multi-view UNet (~0.9 G parameters), one guided step per backend"]
+fn real_size_multiview_guided_step() {
+    let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
+    for (name, device) in [("ndarray", w3d_diffusion::ndarray_device()), ("flex", w3d_diffusion::default_device())] {
+        let t = Instant::now();
+        let unet = UNet::random(&UNetConfig::from_file(config("unet_mv/config.json")).unwrap(), 1, &device).unwrap();
+        let params = unet.num_params();
+        let vae = Vae::random(&VaeConfig::from_file(config("vae/config.json")).unwrap(), 2, &device).unwrap();
+        let clip =
+            ClipVision::random(&ClipVisionConfig::from_file(config("image_encoder/config.json")).unwrap(), 3, &device)
+                .unwrap();
+        let scheduler = SchedulerConfig::from_file(config("scheduler/scheduler_config.json")).unwrap();
+        let pipeline = MultiViewPipeline::new(unet, vae, clip, scheduler).unwrap();
+        println!(
+            "{name}: MV UNet {:.1} M parameters; models built in {:.1} s",
+            params as f64 / 1e6,
+            t.elapsed().as_secs_f64()
+        );
+        let cond = Conditioning {
+            embeds: gaussian_noise([1, 768], 4, &device),
+            latent: gaussian_noise([1, 4, 32, 32], 5, &device),
+        };
+        let options = SampleOptions { steps: 1, guidance: 2.0, eta: 1.0, ..SampleOptions::default() };
+        let noise = pipeline.initial_noise(6, &device);
+        reset_peak_rss();
+        let rss_models = peak_rss();
+        let t = Instant::now();
+        let latents = pipeline.sample_from(noise, &cond, &options, &mut |_, _| {}).unwrap();
+        let values = latents.into_data().try_to_vec::<f32>().unwrap();
+        let seconds = t.elapsed().as_secs_f64();
+        assert_eq!(values.len(), 12 * 4 * 32 * 32);
+        assert!(values.iter().all(|v| v.is_finite()));
+        println!(
+            "{name}: one guided step (24 x 8 x 32 x 32 through the MV UNet + DDIM) {seconds:.1} s; RSS with all models {:.2} GiB, peak during the step {:.2} GiB",
+            gib(rss_models),
+            gib(peak_rss())
+        );
+    }
 }

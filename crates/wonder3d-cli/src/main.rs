@@ -8,14 +8,18 @@
 //! wonder3d eval spot.glb assets/spot.obj --json  # chamfer, fscore_0.01, iou_64, …
 //! wonder3d texture assets/spot.obj views/spot --normalize --out spot.glb  # uv atlas + baked texture
 //! wonder3d demo --out demo                     # the whole pipeline on the bundled spot
+//! wonder3d generate cup.png --weights ckpts --out views/cup  # 6 views x {normal, colour} (docs/weights.md)
+//! wonder3d run cup.png --weights ckpts --out cup.glb          # generate -> reconstruct -> texture
 //! ```
 
 mod demo;
 mod eval;
+mod generate;
 mod info;
 mod progress;
 mod reconstruct;
 mod render;
+mod run;
 mod texture;
 
 use std::process::ExitCode;
@@ -43,6 +47,10 @@ enum Command {
     Texture(texture::TextureArgs),
     /// The whole pipeline on the bundled spot, no downloads: views → mesh → texture → GLB + report.
     Demo(demo::DemoArgs),
+    /// Generate 6 normal + 6 colour views of an RGBA image with the multi-view diffusion model.
+    Generate(generate::GenerateArgs),
+    /// One image to a textured mesh: generate → reconstruct → texture.
+    Run(run::RunArgs),
 }
 
 fn main() -> ExitCode {
@@ -54,6 +62,8 @@ fn main() -> ExitCode {
         Command::Reconstruct(args) => reconstruct::run(&args),
         Command::Texture(args) => texture::run(&args),
         Command::Demo(args) => demo::run(&args),
+        Command::Generate(args) => generate::run(&args),
+        Command::Run(args) => run::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

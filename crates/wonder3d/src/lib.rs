@@ -21,6 +21,11 @@ pub use w3d_core as core;
 pub use w3d_core::{
     Camera, Error, Image, Mesh, Projection, Result, RigView, ViewImages, ViewRig, ViewSet, load_mesh, save_mesh,
 };
+/// The Wonder3D++ multi-view diffusion model on Burn: the multi-view cross-domain UNet, VAE,
+/// CLIP image encoder, DDIM sampling and inversion, and `MultiViewPipeline` (image → 6 views
+/// × {normal, colour} → `ViewSet`) (the `w3d-diffusion` crate; feature `diffusion`, default).
+#[cfg(feature = "diffusion")]
+pub use w3d_diffusion as diffusion;
 /// Evaluation metrics: Chamfer, F-score, volume IoU, normal consistency, PSNR / SSIM
 /// (the `w3d-eval` crate).
 pub use w3d_eval as eval;

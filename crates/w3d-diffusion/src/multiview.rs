@@ -1,0 +1,576 @@
+//! Wonder3D++ multi-view generation: one RGBA image in, 6 views × {normal, colour} out.
+//!
+//! The steps follow the design reference `wonder3d.md` §0-§4:
+//! 1. [`prepare_input`]: crop to the alpha bounding box, scale the object's longest side to
+//!    75 % of the model's image side, centre it and composite it over white.
+//! 2. [`MultiViewPipeline::condition`]: the CLIP image embedding (one token) and the VAE latent
+//!    mode (× `scaling_factor`) of that image.
+//! 3. [`MultiViewPipeline::sample_from`]: DDIM with classifier-free guidance over the batch
+//!    `[normal × 6 views, colour × 6 views]`, the domain / camera switchers as class labels
+//!    ([`switcher_labels`]), one initial noise per view shared by both domains; the guided
+//!    batch is `[normal uncond, normal cond, colour uncond, colour cond]` so the cross-domain
+//!    attention pairs unconditional with unconditional (the reference's 2024-08-29 fix); the
+//!    unconditional branch has a zero embedding and a zero latent.
+//! 4. [`MultiViewPipeline::decode`]: VAE decode, `x / 2 + 0.5` clamped to `[0, 1]`;
+//!    [`GeneratedViews::to_view_set`] turns the images into a [`ViewSet`] in the rig's frame.
+//!
+//! [`MultiViewPipeline::invert`] is the DDIM inversion the refinement stage uses.
+//!
+//! ```
+//! use w3d_diffusion::{CameraType, Domain, switcher_labels};
+//!
+//! // Class labels of the six colour views, perspective camera: 14 values per view.
+//! let labels = switcher_labels(Domain::Colour, CameraType::Perspective, 14)?;
+//! assert_eq!(labels.len(), 6 * 14);
+//! // The back view (index 3): d_azim = π, so its sine is ~0 and its cosine ~-1.
+//! let back = &labels[3 * 14..4 * 14];
+//! assert!(back[2].abs() < 1e-5 && (back[7 + 2] + 1.0).abs() < 1e-5);
+//! // sin of the switches: camera [1, 0] (persp), task [0, 1] (colour).
+//! assert_eq!(back[3..7], [1f32.sin(), 0.0, 0.0, 1f32.sin()]);
+//! # Ok::<(), w3d_core::Error>(())
+//! ```
+
+use std::path::Path;
+use std::str::FromStr;
+
+use burn::tensor::{Device, Tensor, TensorData};
+use image::imageops::FilterType;
+use w3d_core::{Error, Image, ViewImages, ViewRig, ViewSet};
+
+use crate::clip::{ClipVision, preprocess as clip_preprocess};
+use crate::config::SchedulerConfig;
+use crate::scheduler::{DdimInverseScheduler, DdimScheduler, classifier_free_guidance, ddim_invert, gaussian_noise};
+use crate::unet::UNet;
+use crate::vae::Vae;
+
+/// Views generated per domain, in rig order: front, front_right, right, back, left,
+/// front_left (`w3d_core::rig::WONDER3D_VIEW_NAMES`).
+pub const NUM_VIEWS: usize = 6;
+
+/// The model's view labels `(d_elev, d_azim)` in radians, in rig order. These are fixed
+/// labels the model was trained with, not the true camera angles (`wonder3d.md` §2, §9).
+// The values as the reference tabulates them (6 decimals; 3.141593 is its rounding of π).
+#[allow(clippy::approx_constant, clippy::excessive_precision)]
+pub const VIEW_LABELS: [(f32, f32); NUM_VIEWS] = [
+    (0.000000, 0.000000),
+    (-0.236240, 0.812378),
+    (-0.168619, 1.693490),
+    (0.522037, 3.141593),
+    (0.690655, 4.835082),
+    (0.373314, 5.586011),
+];
+
+/// Fraction of the model's image side the object's longest side fills (Wonder3D's
+/// `crop_size` 192 of 256).
+pub const OBJECT_FRACTION: f32 = 0.75;
+
+/// A pixel of a generated view is background when every channel of both its normal image
+/// and its colour image exceeds this (white background; a unit normal cannot encode to more
+/// than 0.8 in all three channels, since that needs |n| > 1.03).
+pub const BACKGROUND_THRESHOLD: f32 = 0.8;
+
+/// The output domain chosen by the domain switcher.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Domain {
+    /// Normal maps (switch `[1, 0]`).
+    Normal,
+    /// Colour images (switch `[0, 1]`).
+    Colour,
+}
+
+/// The camera type chosen by the camera switcher (Wonder3D++ only).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum CameraType {
+    /// Orthographic views (switch `[0, 1]`); `ViewRig::wonder3d_ortho`.
+    #[default]
+    Orthographic,
+    /// 35 mm perspective views (switch `[1, 0]`); `ViewRig::wonder3d_persp`.
+    Perspective,
+}
+
+impl CameraType {
+    /// The 6-view rig of this camera type (the geometric rig of `DESIGN.md` §3).
+    pub fn rig(self) -> ViewRig {
+        match self {
+            CameraType::Orthographic => ViewRig::wonder3d_ortho(),
+            CameraType::Perspective => ViewRig::wonder3d_persp(),
+        }
+    }
+}
+
+impl FromStr for CameraType {
+    type Err = Error;
+
+    /// `ortho` / `orthographic` or `persp` / `perspective`.
+    fn from_str(s: &str) -> Result<Self, Error> {
+        match s {
+            "ortho" | "orthographic" => Ok(CameraType::Orthographic),
+            "persp" | "perspective" => Ok(CameraType::Perspective),
+            other => Err(Error::invalid("camera", format!("ortho or persp (found {other:?})"))),
+        }
+    }
+}
+
+/// Class labels of the six views of one domain, `NUM_VIEWS × input_dim` row-major: the
+/// single-frequency encoding `concat(sin v, cos v)` of
+/// `v = [elev_cond = 0, d_elev, d_azim, camera(2), task(2)]` (`input_dim` 14, Wonder3D++), or
+/// without the camera type (`input_dim` 10, Wonder3D v1, orthographic only). The class
+/// embedding projects them and adds them to the time embedding.
+pub fn switcher_labels(domain: Domain, camera: CameraType, input_dim: usize) -> Result<Vec<f32>, Error> {
+    let task = match domain {
+        Domain::Normal => [1.0, 0.0],
+        Domain::Colour => [0.0, 1.0],
+    };
+    let camera_switch = match (input_dim, camera) {
+        (14, CameraType::Orthographic) => vec![0.0, 1.0],
+        (14, CameraType::Perspective) => vec![1.0, 0.0],
+        (10, CameraType::Orthographic) => Vec::new(),
+        (10, CameraType::Perspective) => {
+            return Err(Error::invalid("camera", "ortho (a 10-d class embedding has no camera switcher)"));
+        }
+        (d, _) => {
+            return Err(Error::invalid("projection_class_embeddings_input_dim", format!("10 or 14 (found {d})")));
+        }
+    };
+    let mut labels = Vec::with_capacity(NUM_VIEWS * input_dim);
+    for (d_elev, d_azim) in VIEW_LABELS {
+        let v: Vec<f32> = [0.0, d_elev, d_azim].into_iter().chain(camera_switch.iter().copied()).chain(task).collect();
+        labels.extend(v.iter().map(|x| x.sin()));
+        labels.extend(v.iter().map(|x| x.cos()));
+    }
+    Ok(labels)
+}
+
+/// Wonder3D's input preprocessing: crops `rgba` (4 channels, values in `[0, 1]`, straight
+/// alpha) to the bounding box of its non-zero alpha, scales it (premultiplied, bilinear with
+/// antialiasing) so its longest side is [`OBJECT_FRACTION`] of `size`, centres it on a
+/// `size × size` canvas and composites it over white. Returns the RGB image (3 channels).
+pub fn prepare_input(rgba: &Image, size: u32) -> Result<Image, Error> {
+    if rgba.channels() != 4 {
+        return Err(Error::invalid(
+            "image",
+            format!(
+                "an RGBA image whose alpha masks the object (found {} channels; remove the background first, e.g. with rembg)",
+                rgba.channels()
+            ),
+        ));
+    }
+    if size == 0 {
+        return Err(Error::invalid("size", "at least 1 pixel"));
+    }
+    let (w, h) = (rgba.width(), rgba.height());
+    let (mut x0, mut y0, mut x1, mut y1) = (u32::MAX, u32::MAX, 0, 0);
+    for y in 0..h {
+        for x in 0..w {
+            if rgba.pixel(x, y)[3] > 0.0 {
+                (x0, y0, x1, y1) = (x0.min(x), y0.min(y), x1.max(x + 1), y1.max(y + 1));
+            }
+        }
+    }
+    if x0 == u32::MAX {
+        return Err(Error::invalid("image alpha", "a non-empty object mask (every pixel is transparent)"));
+    }
+    let (cw, ch) = (x1 - x0, y1 - y0);
+    let mut crop = image::Rgba32FImage::new(cw, ch);
+    for y in 0..ch {
+        for x in 0..cw {
+            let p = rgba.pixel(x0 + x, y0 + y);
+            let a = p[3].clamp(0.0, 1.0);
+            crop.put_pixel(x, y, image::Rgba([p[0] * a, p[1] * a, p[2] * a, a]));
+        }
+    }
+    let target = (OBJECT_FRACTION * size as f32).round().max(1.0);
+    let scale = target / cw.max(ch) as f32;
+    let (nw, nh) = (((cw as f32 * scale).round() as u32).max(1), ((ch as f32 * scale).round() as u32).max(1));
+    let resized = image::imageops::resize(&crop, nw, nh, FilterType::Triangle);
+    let (ox, oy) = ((size - nw) / 2, (size - nh) / 2);
+    let mut out = Image::filled(size, size, 3, 1.0)?;
+    for y in 0..nh {
+        for x in 0..nw {
+            let p = resized.get_pixel(x, y).0;
+            let a = p[3].clamp(0.0, 1.0);
+            let dst = out.pixel_mut(ox + x, oy + y);
+            for c in 0..3 {
+                dst[c] = (p[c] + (1.0 - a)).clamp(0.0, 1.0);
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// The conditions of one input image.
+#[derive(Clone, Debug)]
+pub struct Conditioning {
+    /// The CLIP image embedding, `[1, cross_attention_dim]`.
+    pub embeds: Tensor<2>,
+    /// The VAE latent mode × `scaling_factor`, `[1, latent_channels, h, w]`.
+    pub latent: Tensor<4>,
+}
+
+/// Sampling options.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SampleOptions {
+    /// DDIM steps (reference default 50).
+    pub steps: usize,
+    /// Classifier-free guidance scale (Wonder3D++ default 2; 1 runs no unconditional branch).
+    pub guidance: f64,
+    /// DDIM eta: 0 deterministic, 1 the reference's fully stochastic sampling.
+    pub eta: f64,
+    /// Camera type of the generated views.
+    pub camera: CameraType,
+    /// Seed of the initial noise and of the per-step noise when `eta > 0`.
+    pub seed: u64,
+}
+
+impl Default for SampleOptions {
+    /// The Wonder3D++ defaults: 50 steps, guidance 2, eta 1, orthographic, seed 42.
+    fn default() -> Self {
+        Self { steps: 50, guidance: 2.0, eta: 1.0, camera: CameraType::Orthographic, seed: 42 }
+    }
+}
+
+/// The generated images, in rig order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GeneratedViews {
+    /// Camera type the views were generated for.
+    pub camera: CameraType,
+    /// Normal maps as the model draws them: RGB = (n + 1) / 2 in the input camera's frame
+    /// (OpenGL axes: +x right, +y up, +z towards the viewer), white background, 3 channels.
+    pub normals: Vec<Image>,
+    /// Colour images (sRGB in `[0, 1]`), white background, 3 channels.
+    pub colours: Vec<Image>,
+}
+
+impl GeneratedViews {
+    /// The views as a [`ViewSet`] with the rig of their camera type: normals decoded to unit
+    /// vectors (`2·rgb − 1`, normalised; the input camera's frame is the canonical frame of
+    /// `DESIGN.md` §3, so no rotation), colours as generated, and masks that are 0 where both
+    /// images are background (every channel above [`BACKGROUND_THRESHOLD`]); normals are zero
+    /// on the background.
+    pub fn to_view_set(&self) -> Result<(ViewSet, ViewRig), Error> {
+        let rig = self.camera.rig();
+        if self.normals.len() != rig.len() || self.colours.len() != rig.len() {
+            return Err(Error::invalid(
+                "views",
+                format!(
+                    "{} normal and colour images (found {}, {})",
+                    rig.len(),
+                    self.normals.len(),
+                    self.colours.len()
+                ),
+            ));
+        }
+        let mut views = Vec::with_capacity(rig.len());
+        for ((normal_rgb, colour), view) in self.normals.iter().zip(&self.colours).zip(&rig.views) {
+            let (w, h) = (normal_rgb.width(), normal_rgb.height());
+            colour.expect_shape("colour", w, h, 3)?;
+            normal_rgb.expect_shape("normal", w, h, 3)?;
+            let mut normal = Vec::with_capacity((w * h * 3) as usize);
+            let mut mask = Vec::with_capacity((w * h) as usize);
+            for (n, c) in normal_rgb.data().chunks_exact(3).zip(colour.data().chunks_exact(3)) {
+                let white = |p: &[f32]| p.iter().all(|&v| v > BACKGROUND_THRESHOLD);
+                let v = [2.0 * n[0] - 1.0, 2.0 * n[1] - 1.0, 2.0 * n[2] - 1.0];
+                let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                if (white(n) && white(c)) || len < 1e-6 {
+                    normal.extend([0.0; 3]);
+                    mask.push(0.0);
+                } else {
+                    normal.extend(v.map(|x| x / len));
+                    mask.push(1.0);
+                }
+            }
+            views.push(ViewImages {
+                name: view.name.clone(),
+                normal: Image::new(w, h, 3, normal)?,
+                colour: Some(colour.clone()),
+                mask: Image::new(w, h, 1, mask)?,
+                depth: None,
+            });
+        }
+        Ok((ViewSet { views }, rig))
+    }
+}
+
+/// The Wonder3D++ multi-view diffusion pipeline: the multi-view cross-domain UNet, the VAE,
+/// the CLIP image encoder and the DDIM scheduler config.
+#[derive(Debug)]
+pub struct MultiViewPipeline {
+    unet: UNet,
+    vae: Vae,
+    clip: ClipVision,
+    scheduler: SchedulerConfig,
+    image_size: usize,
+}
+
+impl MultiViewPipeline {
+    /// Assembles a pipeline, checking that the models fit together: the UNet has
+    /// `num_views` = 6, a projection class embedding of 10 or 14 inputs, a `sample_size`,
+    /// `2 × latent_channels` inputs and `latent_channels` outputs, and conditions on the CLIP
+    /// projection width.
+    pub fn new(unet: UNet, vae: Vae, clip: ClipVision, scheduler: SchedulerConfig) -> Result<Self, Error> {
+        scheduler.validate()?;
+        let u = unet.config();
+        let latent = vae.config().latent_channels;
+        if u.views() != NUM_VIEWS {
+            return Err(Error::invalid(
+                "unet num_views",
+                format!("{NUM_VIEWS} (found {}; Wonder3D passes num_views: 6 to the UNet)", u.views()),
+            ));
+        }
+        if !matches!(u.projection_class_embeddings_input_dim, Some(10 | 14)) || u.class_embed_type.is_none() {
+            return Err(Error::invalid(
+                "unet class_embed_type",
+                "projection with projection_class_embeddings_input_dim 10 or 14 (the switchers)",
+            ));
+        }
+        if u.in_channels != 2 * latent || u.out_channels != latent {
+            return Err(Error::invalid(
+                "unet in_channels/out_channels",
+                format!(
+                    "{} and {latent} for a {latent}-channel VAE (found {}, {})",
+                    2 * latent,
+                    u.in_channels,
+                    u.out_channels
+                ),
+            ));
+        }
+        if u.cross_attention_dim != clip.config().projection_dim {
+            return Err(Error::invalid(
+                "unet cross_attention_dim",
+                format!("the CLIP projection_dim {} (found {})", clip.config().projection_dim, u.cross_attention_dim),
+            ));
+        }
+        let sample_size = u.sample_size.ok_or_else(|| Error::invalid("unet sample_size", "the latent side (32)"))?;
+        let image_size = sample_size * vae.config().downscale();
+        Ok(Self { unet, vae, clip, scheduler, image_size })
+    }
+
+    /// Loads a model directory as published for Wonder3D / Wonder3D++ (`docs/weights.md`):
+    /// `unet/`, `vae/`, `image_encoder/` (config + safetensors each) and
+    /// `scheduler/scheduler_config.json`; `feature_extractor/` and `model_index.json` may be
+    /// present and are not needed (the CLIP preprocessing is fixed).
+    pub fn from_dir(dir: impl AsRef<Path>, device: &Device) -> Result<Self, Error> {
+        let dir = dir.as_ref();
+        if !dir.is_dir() {
+            return Err(Error::invalid(
+                "weights",
+                format!(
+                    "a model directory with unet/, vae/, image_encoder/, scheduler/ ({} is not a directory)",
+                    dir.display()
+                ),
+            ));
+        }
+        let unet = UNet::from_dir(dir.join("unet"), device)?;
+        let vae = Vae::from_dir(dir.join("vae"), device)?;
+        let clip = ClipVision::from_dir(dir.join("image_encoder"), device)?;
+        let scheduler = SchedulerConfig::from_file(dir.join("scheduler").join("scheduler_config.json"))?;
+        Self::new(unet, vae, clip, scheduler)
+    }
+
+    /// The UNet.
+    pub fn unet(&self) -> &UNet {
+        &self.unet
+    }
+
+    /// Side of the model's square images in pixels (`sample_size` × the VAE downscale: 256).
+    pub fn image_size(&self) -> usize {
+        self.image_size
+    }
+
+    /// Shape of the initial noise, one latent per view: `[6, latent_channels, side, side]`.
+    pub fn noise_shape(&self) -> [usize; 4] {
+        let side = self.image_size / self.vae.config().downscale();
+        [NUM_VIEWS, self.vae.config().latent_channels, side, side]
+    }
+
+    /// The seeded initial noise ([`MultiViewPipeline::noise_shape`]).
+    pub fn initial_noise(&self, seed: u64, device: &Device) -> Tensor<4> {
+        gaussian_noise(self.noise_shape(), seed, device)
+    }
+
+    /// The conditions of `rgb` (3 channels, `image_size²`, values in `[0, 1]`, white
+    /// background: the output of [`prepare_input`]).
+    pub fn condition(&self, rgb: &Image, device: &Device) -> Result<Conditioning, Error> {
+        let s = self.image_size as u32;
+        rgb.expect_shape("input image", s, s, 3)?;
+        let n = self.image_size;
+        let values255: Vec<f32> = rgb.data().iter().map(|v| v * 255.0).collect();
+        let size = self.clip.config().image_size;
+        let pixels = clip_preprocess(&values255, n, n, size)?;
+        let pixels = Tensor::<4>::from_data(TensorData::new(pixels, [1, 3, size, size]), device);
+        let embeds = self.clip.image_embeds(pixels)?;
+        let chw: Tensor<3> = Tensor::from_data(TensorData::new(rgb.data().to_vec(), [n, n, 3]), device);
+        let image = chw.permute([2, 0, 1]).reshape([1, 3, n, n]) * 2.0 - 1.0;
+        let latent = self.vae.encode_mean(image)? * self.vae.config().scaling_factor;
+        Ok(Conditioning { embeds, latent })
+    }
+
+    /// Class labels `[12, input_dim]` of the batch `[normal × 6, colour × 6]`.
+    fn class_labels(&self, camera: CameraType, device: &Device) -> Result<Tensor<2>, Error> {
+        let dim = self.unet.config().projection_class_embeddings_input_dim.unwrap_or(0);
+        let mut labels = switcher_labels(Domain::Normal, camera, dim)?;
+        labels.extend(switcher_labels(Domain::Colour, camera, dim)?);
+        Ok(Tensor::from_data(TensorData::new(labels, [2 * NUM_VIEWS, dim]), device))
+    }
+
+    /// The guided noise prediction for latents `[12, c, h, w]` (`[normal × 6, colour × 6]`)
+    /// at timestep `t`.
+    fn predict(
+        &self,
+        x: Tensor<4>,
+        t: usize,
+        cond: &Conditioning,
+        labels: &Tensor<2>,
+        guidance: f64,
+    ) -> Result<Tensor<4>, Error> {
+        let [n, c, h, w] = x.dims();
+        let v = n / 2;
+        let cond_latent = cond.latent.clone().repeat_dim(0, v);
+        let [_, d] = cond.embeds.dims();
+        let context: Tensor<3> = cond.embeds.clone().reshape([1, 1, d]).repeat_dim(0, v);
+        let normal = x.clone().slice([0..v, 0..c, 0..h, 0..w]);
+        let colour = x.slice([v..n, 0..c, 0..h, 0..w]);
+        let timestep = [t as f32];
+        if guidance == 1.0 {
+            let input = Tensor::cat(
+                vec![Tensor::cat(vec![normal, cond_latent.clone()], 1), Tensor::cat(vec![colour, cond_latent], 1)],
+                0,
+            );
+            return self.unet.forward(input, &timestep, context.repeat_dim(0, 2), Some(labels.clone()));
+        }
+        let zero_latent = cond_latent.zeros_like();
+        let zero_context = context.zeros_like();
+        let input = Tensor::cat(
+            vec![
+                Tensor::cat(vec![normal.clone(), zero_latent.clone()], 1),
+                Tensor::cat(vec![normal, cond_latent.clone()], 1),
+                Tensor::cat(vec![colour.clone(), zero_latent], 1),
+                Tensor::cat(vec![colour, cond_latent], 1),
+            ],
+            0,
+        );
+        let context = Tensor::cat(vec![zero_context.clone(), context.clone(), zero_context, context], 0);
+        let dim = labels.dims()[1];
+        let normal_labels = labels.clone().slice([0..v, 0..dim]);
+        let colour_labels = labels.clone().slice([v..n, 0..dim]);
+        let labels = Tensor::cat(vec![normal_labels.clone(), normal_labels, colour_labels.clone(), colour_labels], 0);
+        let out = self.unet.forward(input, &timestep, context, Some(labels))?;
+        let quarter = |i: usize| out.clone().slice([i * v..(i + 1) * v, 0..c, 0..h, 0..w]);
+        let normal = classifier_free_guidance(quarter(0), quarter(1), guidance);
+        let colour = classifier_free_guidance(quarter(2), quarter(3), guidance);
+        Ok(Tensor::cat(vec![normal, colour], 0))
+    }
+
+    fn check_conditioning(&self, cond: &Conditioning) -> Result<(), Error> {
+        let [_, c, h, w] = self.noise_shape();
+        let d = self.unet.config().cross_attention_dim;
+        if cond.embeds.dims() != [1, d] {
+            return Err(Error::invalid("conditioning embeds", format!("[1, {d}] (found {:?})", cond.embeds.dims())));
+        }
+        if cond.latent.dims() != [1, c, h, w] {
+            return Err(Error::invalid(
+                "conditioning latent",
+                format!("[1, {c}, {h}, {w}] (found {:?})", cond.latent.dims()),
+            ));
+        }
+        Ok(())
+    }
+
+    fn check_latents(&self, x: &Tensor<4>, field: &str, allow_shared: bool) -> Result<(), Error> {
+        let [_, c, h, w] = self.noise_shape();
+        let dims = x.dims();
+        let ok = (dims[0] == 2 * NUM_VIEWS || (allow_shared && dims[0] == NUM_VIEWS)) && dims[1..] == [c, h, w];
+        if !ok {
+            let shared = if allow_shared { format!("[{NUM_VIEWS}, {c}, {h}, {w}] or ") } else { String::new() };
+            return Err(Error::invalid(field, format!("{shared}[{}, {c}, {h}, {w}] (found {dims:?})", 2 * NUM_VIEWS)));
+        }
+        Ok(())
+    }
+
+    /// DDIM sampling from `noise` down to clean latents `[12, c, h, w]` (`[normal × 6,
+    /// colour × 6]`). `noise` is `[6, c, h, w]` (one latent per view, shared by both domains,
+    /// as the reference samples) or `[12, c, h, w]` (per domain, e.g. from
+    /// [`MultiViewPipeline::invert`]). `progress(done, total)` is called after every step.
+    pub fn sample_from(
+        &self,
+        noise: Tensor<4>,
+        cond: &Conditioning,
+        options: &SampleOptions,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Result<Tensor<4>, Error> {
+        self.check_latents(&noise, "noise", true)?;
+        self.check_conditioning(cond)?;
+        let device = noise.device();
+        let scheduler = DdimScheduler::new(self.scheduler.clone(), options.steps)?;
+        let labels = self.class_labels(options.camera, &device)?;
+        let mut x = if noise.dims()[0] == NUM_VIEWS { noise.repeat_dim(0, 2) } else { noise };
+        let total = scheduler.timesteps().len();
+        for (i, &t) in scheduler.timesteps().iter().enumerate() {
+            let eps = self.predict(x.clone(), t, cond, &labels, options.guidance)?;
+            let variance_noise = (options.eta > 0.0).then(|| {
+                let step_seed = options.seed ^ (i as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+                gaussian_noise(x.dims(), step_seed, &device)
+            });
+            x = scheduler.step(eps, t, x, options.eta, variance_noise)?;
+            progress(i + 1, total);
+        }
+        Ok(x)
+    }
+
+    /// DDIM inversion of clean latents `[12, c, h, w]` (`[normal × 6, colour × 6]`) to the
+    /// noise `[12, c, h, w]` that deterministic sampling (`eta = 0`, guidance 1, the same
+    /// `steps`) maps back to them. The model is evaluated conditionally (guidance 1);
+    /// `refinements` fixed-point iterations per step make it the exact inverse as they
+    /// converge (see [`ddim_invert`]).
+    pub fn invert(
+        &self,
+        latents: Tensor<4>,
+        cond: &Conditioning,
+        camera: CameraType,
+        steps: usize,
+        refinements: usize,
+    ) -> Result<Tensor<4>, Error> {
+        self.check_latents(&latents, "latents", false)?;
+        self.check_conditioning(cond)?;
+        let inverse = DdimInverseScheduler::new(self.scheduler.clone(), steps)?;
+        let labels = self.class_labels(camera, &latents.device())?;
+        ddim_invert(&inverse, latents, refinements, |x, t| self.predict(x, t, cond, &labels, 1.0))
+    }
+
+    /// Decodes latents `[12, c, h, w]` into the 6 normal and 6 colour images (one image at a
+    /// time, to bound memory).
+    pub fn decode(&self, latents: Tensor<4>, camera: CameraType) -> Result<GeneratedViews, Error> {
+        self.check_latents(&latents, "latents", false)?;
+        let [n, c, h, w] = latents.dims();
+        let scaled = latents / self.vae.config().scaling_factor;
+        let mut images = Vec::with_capacity(n);
+        for i in 0..n {
+            let decoded = self.vae.decode(scaled.clone().slice([i..i + 1, 0..c, 0..h, 0..w]))?;
+            let [_, _, ih, iw] = decoded.dims();
+            let hwc = (decoded * 0.5 + 0.5).clamp(0.0, 1.0).reshape([3, ih, iw]).permute([1, 2, 0]);
+            let values = hwc
+                .into_data()
+                .try_to_vec::<f32>()
+                .map_err(|e| Error::invalid("decoded image", format!("f32 values ({e:?})")))?;
+            images.push(Image::new(iw as u32, ih as u32, 3, values)?);
+        }
+        let colours = images.split_off(NUM_VIEWS);
+        Ok(GeneratedViews { camera, normals: images, colours })
+    }
+
+    /// The whole generation: [`prepare_input`], [`MultiViewPipeline::condition`], seeded
+    /// noise, [`MultiViewPipeline::sample_from`] and [`MultiViewPipeline::decode`].
+    pub fn generate(
+        &self,
+        rgba: &Image,
+        options: &SampleOptions,
+        device: &Device,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Result<GeneratedViews, Error> {
+        let input = prepare_input(rgba, self.image_size as u32)?;
+        let cond = self.condition(&input, device)?;
+        let noise = self.initial_noise(options.seed, device);
+        let latents = self.sample_from(noise, &cond, options, progress)?;
+        self.decode(latents, options.camera)
+    }
+}

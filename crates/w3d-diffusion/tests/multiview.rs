@@ -1,0 +1,409 @@
+//! The Wonder3D++ multi-view cross-domain UNet and pipeline against the fixture script's
+//! PyTorch reference (diffusers blocks + the multi-view / cross-domain processors written from
+//! the design reference), on a tiny checkpoint with the real key names: UNet forward for both
+//! camera types (both domains in each batch), the switcher labels, a 5-step guided pipeline,
+//! view-permutation equivariance, the domain switcher, the fresh cross-domain initialisation,
+//! legacy key names, seeding, inversion, input preprocessing and the view-set conversion.
+
+mod common;
+
+use std::collections::HashMap;
+
+use common::{fixture, max_abs, max_abs_diff, tensor, test_devices, values};
+use w3d_core::{Image, ViewSet};
+use w3d_diffusion::multiview::NUM_VIEWS;
+use w3d_diffusion::{
+    CameraType, Domain, GeneratedViews, MultiViewPipeline, SafetensorsFile, SampleOptions, Tensor, TensorData, UNet,
+    UNetConfig, prepare_input, switcher_labels,
+};
+
+fn unet_io() -> SafetensorsFile {
+    SafetensorsFile::open(fixture("multiview/unet_io.safetensors")).unwrap()
+}
+
+/// Rows `order` of a batch tensor.
+fn rows<const D: usize>(t: &Tensor<D>, order: &[usize]) -> Tensor<D> {
+    let parts = order
+        .iter()
+        .map(|&i| {
+            let mut ranges: [std::ops::Range<usize>; D] = std::array::from_fn(|d| 0..t.dims()[d]);
+            ranges[0] = i..i + 1;
+            t.clone().slice(ranges)
+        })
+        .collect();
+    Tensor::cat(parts, 0)
+}
+
+#[test]
+fn switcher_labels_match_the_reference() {
+    let device = w3d_diffusion::default_device();
+    let mut io = unet_io();
+    for (camera, name) in [(CameraType::Orthographic, "ortho"), (CameraType::Perspective, "persp")] {
+        let mut ours = switcher_labels(Domain::Normal, camera, 14).unwrap();
+        ours.extend(switcher_labels(Domain::Colour, camera, 14).unwrap());
+        let expected = values(tensor::<2>(&mut io, &format!("class_labels_{name}"), &device));
+        let err = ours.iter().zip(&expected).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+        assert!(err <= 1e-6, "{name}: label error {err}");
+    }
+    // Wonder3D v1's 10-d labels have no camera switcher: the same values without it.
+    let v1 = switcher_labels(Domain::Colour, CameraType::Orthographic, 10).unwrap();
+    let plus = switcher_labels(Domain::Colour, CameraType::Orthographic, 14).unwrap();
+    assert_eq!(v1.len(), 60);
+    assert_eq!(v1[..3], plus[..3]);
+    assert_eq!(v1[3..5], plus[5..7]);
+    assert!(switcher_labels(Domain::Normal, CameraType::Perspective, 10).is_err());
+}
+
+#[test]
+fn multiview_unet_matches_the_reference_for_both_domains_and_cameras() {
+    for (name, device) in test_devices() {
+        let unet = UNet::from_dir(fixture("wonder3d_tiny/unet"), &device).unwrap();
+        assert_eq!((unet.config().views(), unet.config().cd_attention_mid), (6, true));
+        let mut io = unet_io();
+        let timesteps = values(tensor::<1>(&mut io, "timesteps", &device));
+        for camera in ["ortho", "persp"] {
+            let out = unet
+                .forward(
+                    tensor(&mut io, "sample", &device),
+                    &timesteps,
+                    tensor(&mut io, "context", &device),
+                    Some(tensor(&mut io, &format!("class_labels_{camera}"), &device)),
+                )
+                .unwrap();
+            let expected: Tensor<4> = tensor(&mut io, &format!("out_{camera}"), &device);
+            let scale = max_abs(expected.clone());
+            let [n, c, h, w] = expected.dims();
+            for (domain, range) in [("normal", 0..n / 2), ("colour", n / 2..n)] {
+                let half = |t: &Tensor<4>| t.clone().slice([range.clone(), 0..c, 0..h, 0..w]);
+                let err = max_abs_diff(half(&out), half(&expected));
+                println!("{name} {camera} {domain}: max-abs error {err:.2e} (output max {scale:.2})");
+                assert!(err <= 1e-4, "{name} {camera} {domain}: max-abs error {err}");
+            }
+        }
+    }
+}
+
+#[test]
+fn permuting_the_views_permutes_the_output() {
+    let device = w3d_diffusion::default_device();
+    let unet = UNet::from_dir(fixture("wonder3d_tiny/unet"), &device).unwrap();
+    let mut io = unet_io();
+    let sample: Tensor<4> = tensor(&mut io, "sample", &device);
+    let context: Tensor<3> = tensor(&mut io, "context", &device);
+    let labels: Tensor<2> = tensor(&mut io, "class_labels_ortho", &device);
+    let out = unet.forward(sample.clone(), &[421.0], context.clone(), Some(labels.clone())).unwrap();
+    // The same permutation of the six views in both domain halves (labels travel with views).
+    let perm = [3, 0, 5, 1, 4, 2];
+    let order: Vec<usize> = perm.iter().copied().chain(perm.iter().map(|i| i + NUM_VIEWS)).collect();
+    let permuted =
+        unet.forward(rows(&sample, &order), &[421.0], rows(&context, &order), Some(rows(&labels, &order))).unwrap();
+    let err = max_abs_diff(permuted, rows(&out, &order));
+    assert!(err <= 1e-5, "equivariance error {err}");
+    // Moving a view into another object's group is not a permutation of the output: the
+    // multi-view attention really mixes the views of a group (control for the check above).
+    let mixed: Vec<usize> = (0..2 * NUM_VIEWS)
+        .map(|i| {
+            if i == 0 {
+                NUM_VIEWS
+            } else if i == NUM_VIEWS {
+                0
+            } else {
+                i
+            }
+        })
+        .collect();
+    let swapped =
+        unet.forward(rows(&sample, &mixed), &[421.0], rows(&context, &mixed), Some(rows(&labels, &mixed))).unwrap();
+    let diff = max_abs_diff(swapped, rows(&out, &mixed));
+    assert!(diff > 1e-3, "swapping a view across domains changed nothing ({diff})");
+}
+
+#[test]
+fn the_domain_switcher_changes_the_output() {
+    let device = w3d_diffusion::default_device();
+    let unet = UNet::from_dir(fixture("wonder3d_tiny/unet"), &device).unwrap();
+    let mut io = unet_io();
+    let sample: Tensor<4> = tensor(&mut io, "sample", &device);
+    let context: Tensor<3> = tensor(&mut io, "context", &device);
+    let labels: Tensor<2> = tensor(&mut io, "class_labels_ortho", &device);
+    let out = unet.forward(sample.clone(), &[421.0], context.clone(), Some(labels.clone())).unwrap();
+    // Both halves told to draw colours.
+    let colour = switcher_labels(Domain::Colour, CameraType::Orthographic, 14).unwrap();
+    let both_colour = Tensor::<2>::from_data(TensorData::new([colour.clone(), colour].concat(), [12, 14]), &device);
+    let changed = unet.forward(sample, &[421.0], context, Some(both_colour)).unwrap();
+    let diff = max_abs_diff(changed.slice([0..6, 0..4, 0..8, 0..8]), out.slice([0..6, 0..4, 0..8, 0..8]));
+    assert!(diff > 1e-2, "the domain switch changed the normal half by only {diff}");
+}
+
+#[test]
+fn fresh_cross_domain_attention_starts_as_the_identity() {
+    let device = w3d_diffusion::default_device();
+    let config = UNetConfig::from_file(fixture("wonder3d_tiny/unet/config.json")).unwrap();
+    let mut io = unet_io();
+    let sample: Tensor<4> = tensor(&mut io, "sample", &device);
+    let context: Tensor<3> = tensor(&mut io, "context", &device);
+    let labels: Tensor<2> = tensor(&mut io, "class_labels_ortho", &device);
+    // Changing the colour half's input: does the normal half's output move?
+    let other = Tensor::cat(
+        vec![sample.clone().slice([0..6, 0..8, 0..8, 0..8]), sample.clone().slice([6..12, 0..8, 0..8, 0..8]) * -1.0],
+        0,
+    );
+    let normal_half_change = |unet: &UNet| {
+        let a = unet.forward(sample.clone(), &[421.0], context.clone(), Some(labels.clone())).unwrap();
+        let b = unet.forward(other.clone(), &[421.0], context.clone(), Some(labels.clone())).unwrap();
+        max_abs_diff(a.slice([0..6, 0..4, 0..8, 0..8]), b.slice([0..6, 0..4, 0..8, 0..8]))
+    };
+    let fresh = UNet::random(&config, 7, &device).unwrap();
+    let trained = UNet::from_dir(fixture("wonder3d_tiny/unet"), &device).unwrap();
+    let (fresh_change, trained_change) = (normal_half_change(&fresh), normal_half_change(&trained));
+    assert!(fresh_change <= 1e-6, "fresh joint attention leaks across domains ({fresh_change})");
+    assert!(trained_change > 1e-3, "the trained joint attention ignores the other domain ({trained_change})");
+}
+
+#[test]
+fn legacy_joint_attention_names_load() {
+    let device = w3d_diffusion::default_device();
+    let dir = tempfile::tempdir().unwrap();
+    let mut file = SafetensorsFile::open(fixture("wonder3d_tiny/unet/diffusion_pytorch_model.safetensors")).unwrap();
+    let keys: Vec<String> = file.shapes().map(|(k, _)| k.to_string()).collect();
+    let mut tensors: HashMap<String, (Vec<u8>, Vec<usize>)> = HashMap::new();
+    for key in keys {
+        let (values, shape) = file.read_f32(&key).unwrap();
+        let bytes = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+        let legacy =
+            key.replace(".attn_joint_mid.", ".attn_joint_twice.").replace(".norm_joint_mid.", ".norm_joint_twice.");
+        tensors.insert(legacy, (bytes, shape));
+    }
+    assert!(tensors.keys().any(|k| k.contains("attn_joint_twice")));
+    let views: Vec<(String, safetensors::tensor::TensorView)> = tensors
+        .iter()
+        .map(|(k, (b, s))| {
+            (k.clone(), safetensors::tensor::TensorView::new(safetensors::Dtype::F32, s.clone(), b).unwrap())
+        })
+        .collect();
+    safetensors::serialize_to_file(views, None, &dir.path().join("diffusion_pytorch_model.safetensors")).unwrap();
+    std::fs::copy(fixture("wonder3d_tiny/unet/config.json"), dir.path().join("config.json")).unwrap();
+    let legacy = UNet::from_dir(dir.path(), &device).unwrap();
+    let current = UNet::from_dir(fixture("wonder3d_tiny/unet"), &device).unwrap();
+    let mut io = unet_io();
+    let run = |unet: &UNet, io: &mut SafetensorsFile| {
+        unet.forward(
+            tensor(io, "sample", &device),
+            &[421.0],
+            tensor(io, "context", &device),
+            Some(tensor(io, "class_labels_persp", &device)),
+        )
+        .unwrap()
+    };
+    assert_eq!(values(run(&legacy, &mut io)), values(run(&current, &mut io)));
+}
+
+#[test]
+fn multiview_batches_must_hold_whole_groups() {
+    let device = w3d_diffusion::default_device();
+    let unet = UNet::from_dir(fixture("wonder3d_tiny/unet"), &device).unwrap();
+    let err = unet
+        .forward(
+            Tensor::zeros([6, 8, 8, 8], &device),
+            &[1.0],
+            Tensor::zeros([6, 1, 16], &device),
+            Some(Tensor::zeros([6, 14], &device)),
+        )
+        .unwrap_err()
+        .to_string();
+    assert!(err.contains("groups of 12") && err.contains("found 6"), "{err}");
+}
+
+fn pipeline_io() -> SafetensorsFile {
+    SafetensorsFile::open(fixture("multiview/pipeline_io.safetensors")).unwrap()
+}
+
+/// The fixture's 32×32 input image.
+fn fixture_input(io: &mut SafetensorsFile) -> Image {
+    let (pixels, shape) = io.read_f32("image").unwrap();
+    Image::new(shape[1] as u32, shape[0] as u32, 3, pixels).unwrap()
+}
+
+#[test]
+fn five_step_guided_pipeline_matches_the_reference() {
+    for (name, device) in test_devices() {
+        let pipeline = MultiViewPipeline::from_dir(fixture("wonder3d_tiny"), &device).unwrap();
+        assert_eq!(pipeline.image_size(), 32);
+        let mut io = pipeline_io();
+        let cond = pipeline.condition(&fixture_input(&mut io), &device).unwrap();
+        let err_embeds = max_abs_diff(cond.embeds.clone(), tensor(&mut io, "embeds", &device));
+        let err_latent = max_abs_diff(cond.latent.clone(), tensor(&mut io, "cond_latent", &device));
+        let options = SampleOptions { steps: 5, guidance: 2.0, eta: 0.0, ..SampleOptions::default() };
+        let mut steps = Vec::new();
+        let latents = pipeline
+            .sample_from(tensor(&mut io, "noise", &device), &cond, &options, &mut |done, total| {
+                steps.push((done, total))
+            })
+            .unwrap();
+        assert_eq!(steps, (1..=5).map(|d| (d, 5)).collect::<Vec<_>>());
+        let err_latents = max_abs_diff(latents.clone(), tensor(&mut io, "latents", &device));
+        let views = pipeline.decode(latents, CameraType::Orthographic).unwrap();
+        let decoded: Vec<f32> = values(tensor::<4>(&mut io, "decoded", &device));
+        let (side, per_image) = (32usize, 3 * 32 * 32);
+        let mut err_images = 0.0f32;
+        for (i, image) in views.normals.iter().chain(&views.colours).enumerate() {
+            for (p, v) in image.data().iter().enumerate() {
+                let (y, x, c) = (p / (3 * side), (p / 3) % side, p % 3);
+                let expected = decoded[i * per_image + (c * side + y) * side + x];
+                err_images = err_images.max((v - expected).abs());
+            }
+        }
+        println!(
+            "{name}: embeds {err_embeds:.2e}, cond latent {err_latent:.2e}, latents {err_latents:.2e}, images {err_images:.2e}"
+        );
+        for (what, err) in
+            [("embeds", err_embeds), ("cond", err_latent), ("latents", err_latents), ("images", err_images)]
+        {
+            assert!(err <= 1e-4, "{name}: {what} error {err}");
+        }
+    }
+}
+
+#[test]
+fn the_same_seed_gives_the_same_bytes() {
+    let device = w3d_diffusion::default_device();
+    let pipeline = MultiViewPipeline::from_dir(fixture("wonder3d_tiny"), &device).unwrap();
+    let mut rgba = Image::filled(40, 30, 4, 0.0).unwrap();
+    for y in 5..25 {
+        for x in 10..30 {
+            rgba.pixel_mut(x, y).copy_from_slice(&[0.8, (x as f32) / 40.0, 0.2, 1.0]);
+        }
+    }
+    let options = SampleOptions { steps: 3, camera: CameraType::Perspective, seed: 11, ..SampleOptions::default() };
+    let run = |options: &SampleOptions| pipeline.generate(&rgba, options, &device, &mut |_, _| {}).unwrap();
+    let (a, b) = (run(&options), run(&options));
+    assert_eq!(a, b);
+    assert_eq!((a.normals.len(), a.colours.len(), a.camera), (6, 6, CameraType::Perspective));
+    let c = run(&SampleOptions { seed: 12, ..options });
+    assert_ne!(a.colours, c.colours);
+}
+
+#[test]
+fn inversion_recovers_the_noise_of_deterministic_sampling() {
+    let device = w3d_diffusion::default_device();
+    let pipeline = MultiViewPipeline::from_dir(fixture("wonder3d_tiny"), &device).unwrap();
+    let mut io = pipeline_io();
+    let cond = pipeline.condition(&fixture_input(&mut io), &device).unwrap();
+    let options = SampleOptions { steps: 5, guidance: 1.0, eta: 0.0, ..SampleOptions::default() };
+    let noise = pipeline.initial_noise(3, &device).repeat_dim(0, 2);
+    let latents = pipeline.sample_from(noise.clone(), &cond, &options, &mut |_, _| {}).unwrap();
+    let camera = options.camera;
+    let plain = pipeline.invert(latents.clone(), &cond, camera, 5, 0).unwrap();
+    let refined = pipeline.invert(latents.clone(), &cond, camera, 5, 6).unwrap();
+    let (err_plain, err_refined) = (max_abs_diff(plain, noise.clone()), max_abs_diff(refined.clone(), noise));
+    let again = pipeline.sample_from(refined, &cond, &options, &mut |_, _| {}).unwrap();
+    let err_round_trip = max_abs_diff(again, latents);
+    println!("inversion error: plain {err_plain:.2e}, refined {err_refined:.2e}, round trip {err_round_trip:.2e}");
+    assert!(err_refined < err_plain, "refinement did not help ({err_refined} vs {err_plain})");
+    assert!(err_refined <= 1e-2 && err_round_trip <= 1e-2, "{err_refined}, {err_round_trip}");
+}
+
+#[test]
+fn input_preprocessing_crops_scales_centres_and_whitens() {
+    // A 60×40 transparent image with an opaque 20×10 red box at (35, 5).
+    let mut rgba = Image::filled(60, 40, 4, 0.0).unwrap();
+    for y in 5..15 {
+        for x in 35..55 {
+            rgba.pixel_mut(x, y).copy_from_slice(&[1.0, 0.0, 0.0, 1.0]);
+        }
+    }
+    let out = prepare_input(&rgba, 32).unwrap();
+    assert_eq!((out.width(), out.height(), out.channels()), (32, 32, 3));
+    // Longest side 24 (75 % of 32), so the box is 24×12, centred: x 4..28, y 10..22.
+    let red = |x: u32, y: u32| {
+        let p = out.pixel(x, y);
+        p[0] > 0.99 && p[1] < 0.01 && p[2] < 0.01
+    };
+    let white = |x: u32, y: u32| out.pixel(x, y).iter().all(|&v| v > 0.99);
+    assert!(red(4, 10) && red(27, 21) && red(16, 16));
+    assert!(white(3, 16) && white(28, 16) && white(16, 9) && white(16, 22) && white(0, 0));
+    assert!(prepare_input(&Image::filled(8, 8, 4, 0.0).unwrap(), 32).unwrap_err().to_string().contains("transparent"));
+    assert!(prepare_input(&Image::filled(8, 8, 3, 1.0).unwrap(), 32).unwrap_err().to_string().contains("RGBA"));
+}
+
+#[test]
+fn generated_views_become_a_view_set_in_the_rig_frame() {
+    // Left half: a normal tilted towards +x and a dark colour; right half: white background.
+    let (w, h) = (8u32, 4u32);
+    let n = [0.6f32, 0.0, 0.8];
+    let mut normal = Image::filled(w, h, 3, 1.0).unwrap();
+    let mut colour = Image::filled(w, h, 3, 1.0).unwrap();
+    for y in 0..h {
+        for x in 0..w / 2 {
+            normal.pixel_mut(x, y).copy_from_slice(&n.map(|v| (v + 1.0) / 2.0 * 1.02));
+            colour.pixel_mut(x, y).copy_from_slice(&[0.2, 0.3, 0.4]);
+        }
+    }
+    let views = GeneratedViews { camera: CameraType::Orthographic, normals: vec![normal; 6], colours: vec![colour; 6] };
+    let (set, rig) = views.to_view_set().unwrap();
+    assert_eq!(rig, CameraType::Orthographic.rig());
+    let v = &set.views[2];
+    assert_eq!(v.name, "right");
+    assert_eq!((v.mask.pixel(0, 0)[0], v.mask.pixel(7, 3)[0]), (1.0, 0.0));
+    let got = v.normal.pixel(1, 1);
+    let len = (got[0] * got[0] + got[1] * got[1] + got[2] * got[2]).sqrt();
+    assert!((len - 1.0).abs() < 1e-5 && (got[0] / got[2] - 0.75).abs() < 0.02, "{got:?}");
+    assert_eq!(v.normal.pixel(6, 1), &[0.0, 0.0, 0.0]);
+    // The folder layout `wonder3d render` writes, read back by `ViewSet::load`.
+    let dir = tempfile::tempdir().unwrap();
+    set.save(dir.path(), &rig).unwrap();
+    let (loaded, loaded_rig) = ViewSet::load(dir.path()).unwrap();
+    assert_eq!((loaded.views.len(), loaded_rig.name.as_str()), (6, "wonder3d_ortho"));
+}
+
+/// Copies the tiny model directory into a temporary one.
+fn tiny_copy() -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    for sub in ["unet", "vae", "image_encoder", "scheduler", "feature_extractor"] {
+        std::fs::create_dir_all(dir.path().join(sub)).unwrap();
+        for entry in std::fs::read_dir(fixture(&format!("wonder3d_tiny/{sub}"))).unwrap() {
+            let entry = entry.unwrap();
+            std::fs::copy(entry.path(), dir.path().join(sub).join(entry.file_name())).unwrap();
+        }
+    }
+    dir
+}
+
+#[test]
+fn model_directory_problems_are_named() {
+    let device = w3d_diffusion::default_device();
+    let m = MultiViewPipeline::from_dir(fixture("no_such_model"), &device).unwrap_err().to_string();
+    assert!(m.contains("not a directory"), "{m}");
+    // The diffusers fp16 variant name loads; a PyTorch pickle gets conversion advice.
+    let dir = tiny_copy();
+    let unet = dir.path().join("unet");
+    std::fs::rename(
+        unet.join("diffusion_pytorch_model.safetensors"),
+        unet.join("diffusion_pytorch_model.fp16.safetensors"),
+    )
+    .unwrap();
+    MultiViewPipeline::from_dir(dir.path(), &device).unwrap();
+    std::fs::rename(unet.join("diffusion_pytorch_model.fp16.safetensors"), unet.join("diffusion_pytorch_model.bin"))
+        .unwrap();
+    let m = MultiViewPipeline::from_dir(dir.path(), &device).unwrap_err().to_string();
+    assert!(m.contains("diffusion_pytorch_model.bin") && m.contains("convert"), "{m}");
+    // Latents and conditions of the wrong shape.
+    let pipeline = MultiViewPipeline::from_dir(fixture("wonder3d_tiny"), &device).unwrap();
+    let cond = w3d_diffusion::Conditioning {
+        embeds: Tensor::zeros([1, 16], &device),
+        latent: Tensor::zeros([1, 4, 8, 8], &device),
+    };
+    let options = SampleOptions { steps: 1, ..SampleOptions::default() };
+    let m = pipeline.sample_from(Tensor::zeros([5, 4, 8, 8], &device), &cond, &options, &mut |_, _| {}).unwrap_err();
+    assert!(m.to_string().contains("[6, 4, 8, 8] or [12, 4, 8, 8]"), "{m}");
+    let bad = w3d_diffusion::Conditioning { embeds: Tensor::zeros([1, 12], &device), ..cond };
+    let m = pipeline.sample_from(Tensor::zeros([6, 4, 8, 8], &device), &bad, &options, &mut |_, _| {}).unwrap_err();
+    assert!(m.to_string().contains("embeds"), "{m}");
+    // A UNet config without Wonder3D's six views.
+    let dir = tiny_copy();
+    let config_path = dir.path().join("unet/config.json");
+    let config = std::fs::read_to_string(&config_path).unwrap().replace("\"num_views\": 6", "\"num_views\": 1");
+    std::fs::write(&config_path, config).unwrap();
+    let m = MultiViewPipeline::from_dir(dir.path(), &device).unwrap_err().to_string();
+    assert!(m.contains("num_views") && m.contains("found 1"), "{m}");
+}

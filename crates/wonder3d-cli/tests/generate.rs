@@ -1,0 +1,144 @@
+//! `wonder3d generate` on the tiny Wonder3D checkpoint of w3d-diffusion's fixtures writes a
+//! view-set folder that `wonder3d reconstruct` reads; `wonder3d run` chains the three stages;
+//! bad input gets clear errors.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+use w3d_core::Image;
+
+fn wonder3d(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_wonder3d")).args(args).output().unwrap()
+}
+
+/// The tiny random-weight model directory (real Wonder3D key names and layout, 32² images).
+fn tiny_weights() -> String {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../w3d-diffusion/tests/fixtures/wonder3d_tiny");
+    dir.to_str().unwrap().to_string()
+}
+
+/// An RGBA PNG: an opaque disc shaded left to right on a transparent background.
+fn write_input(path: &std::path::Path) {
+    let (w, h) = (48u32, 40u32);
+    let mut image = Image::filled(w, h, 4, 0.0).unwrap();
+    for y in 0..h {
+        for x in 0..w {
+            let (dx, dy) = (x as f32 - 24.0, y as f32 - 20.0);
+            if dx * dx + dy * dy < 15.0 * 15.0 {
+                image.pixel_mut(x, y).copy_from_slice(&[0.3 + x as f32 / 96.0, 0.5, 0.7, 1.0]);
+            }
+        }
+    }
+    image.write_png(path).unwrap();
+}
+
+#[test]
+fn generate_writes_views_that_reconstruct_reads() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("disc.png");
+    write_input(&input);
+    let views = dir.path().join("views");
+    let run = wonder3d(&[
+        "generate",
+        input.to_str().unwrap(),
+        "--weights",
+        &tiny_weights(),
+        "--out",
+        views.to_str().unwrap(),
+        "--steps",
+        "3",
+        "--camera",
+        "persp",
+        "--seed",
+        "5",
+        "--quiet",
+    ]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    for view in ["front", "front_right", "right", "back", "left", "front_left"] {
+        for kind in ["normal", "colour", "mask"] {
+            assert!(views.join(format!("{kind}_{view}.png")).is_file(), "{kind}_{view}.png missing");
+        }
+    }
+    assert!(views.join("input.png").is_file());
+    let (set, rig) = w3d_core::ViewSet::load(&views).unwrap();
+    assert_eq!((rig.name.as_str(), set.width(), set.height()), ("wonder3d_persp", 32, 32));
+
+    let mesh = dir.path().join("mesh.obj");
+    let run = wonder3d(&[
+        "reconstruct",
+        views.to_str().unwrap(),
+        "--out",
+        mesh.to_str().unwrap(),
+        "--preset",
+        "fast",
+        "--quiet",
+    ]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(mesh.is_file());
+}
+
+#[test]
+fn run_chains_generate_reconstruct_and_texture() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("disc.png");
+    write_input(&input);
+    let glb = dir.path().join("disc.glb");
+    let run = wonder3d(&[
+        "run",
+        input.to_str().unwrap(),
+        "--weights",
+        &tiny_weights(),
+        "--out",
+        glb.to_str().unwrap(),
+        "--steps",
+        "2",
+        "--preset",
+        "fast",
+        "--texture-size",
+        "512",
+        "--quiet",
+    ]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let mesh = w3d_core::load_mesh(&glb).unwrap();
+    assert!(mesh.triangle_count() > 0 && mesh.texture().is_some());
+}
+
+#[test]
+fn generate_names_what_is_wrong() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("views");
+    let rgb = dir.path().join("rgb.png");
+    Image::filled(16, 16, 3, 0.5).unwrap().write_png(&rgb).unwrap();
+    let run =
+        wonder3d(&["generate", rgb.to_str().unwrap(), "--weights", &tiny_weights(), "--out", out.to_str().unwrap()]);
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("RGBA"), "{err}");
+    let rgba = dir.path().join("rgba.png");
+    write_input(&rgba);
+    let missing = dir.path().join("no-model");
+    let run = wonder3d(&[
+        "generate",
+        rgba.to_str().unwrap(),
+        "--weights",
+        missing.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("no-model"), "{err}");
+    let run = wonder3d(&[
+        "generate",
+        rgba.to_str().unwrap(),
+        "--weights",
+        &tiny_weights(),
+        "--out",
+        out.to_str().unwrap(),
+        "--camera",
+        "fisheye",
+    ]);
+    assert!(!run.status.success());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("ortho or persp"), "{err}");
+}
