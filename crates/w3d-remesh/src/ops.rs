@@ -664,25 +664,27 @@ fn is_folded(positions: &[[f32; 3]], faces: &[[u32; 3]], table: &EdgeTable, f: u
 pub fn relax_folds<R: VertexRows>(rows: &mut R, faces: &[[u32; 3]], table: &EdgeTable, rounds: u32) -> (usize, usize) {
     // A face can only be flipped if it points away from one of its neighbours, so the full
     // test runs on those few (and on zero-area faces).
+    let positions = rows.positions();
     let raw: Vec<Vec3> = faces
         .iter()
         .map(|t| {
-            let [a, b, c] = t.map(|v| v3(rows.positions()[v as usize]));
-            (b - a).cross(c - a)
+            let a = v3(positions[t[0] as usize]);
+            (v3(positions[t[1] as usize]) - a).cross(v3(positions[t[2] as usize]) - a)
         })
         .collect();
-    let mut bad: Vec<u32> = (0..faces.len() as u32)
-        .filter(|&f| {
-            let n = raw[f as usize];
-            let suspect = n == Vec3::ZERO
-                || (0..3).any(|k| {
-                    let g = face_across(table, f, k);
-                    g != NONE && n.dot(raw[g as usize]) < 0.0
-                });
-            suspect && is_folded(rows.positions(), faces, table, f)
-        })
-        .collect();
-    drop(raw);
+    let mut suspect: Vec<bool> = raw.iter().map(|&n| n == Vec3::ZERO).collect();
+    for [left, right] in &table.edge_to_face {
+        if *left != NONE && *right != NONE {
+            let (f, g) = (*left as usize / 3, *right as usize / 3);
+            if raw[f].dot(raw[g]) < 0.0 {
+                suspect[f] = true;
+                suspect[g] = true;
+            }
+        }
+    }
+    let mut bad: Vec<u32> =
+        (0..faces.len() as u32).filter(|&f| suspect[f as usize] && is_folded(positions, faces, table, f)).collect();
+    drop((raw, suspect));
     let found = bad.len();
     if found == 0 || rounds == 0 {
         return (found, found);
@@ -926,7 +928,7 @@ pub fn remesh<R: VertexRows>(
 
     // Valence-3 vertices at an edge that wants to collapse block its neighbours' collapses.
     let mut removed_valence3 = 0;
-    if params.remove_valence3 {
+    if params.remove_valence3 && priority.iter().any(|&p| p > 0.0) {
         let mut candidate = vec![false; num_vertices];
         for (&[a, b], &p) in table.edges.iter().zip(&priority) {
             if p > 0.0 {
