@@ -31,6 +31,16 @@ pub struct RemeshParams {
     /// Not in the reference: at most this many rounds of [`relax_folds`] after the pack, so
     /// that the pass leaves no flipped and no zero-area faces; 0 turns it off (default 10).
     pub fold_relaxation_rounds: u32,
+    /// Rounds of rank propagation that pick the far-apart collapses of a pass (see
+    /// [`collapse_edges`]): 3 (the reference, default) or 2 (the fewest that are safe;
+    /// smaller values count as 2). With 2, about twice as many edges collapse per pass in
+    /// crowded regions. Measured: in the shape test (`tests/shape_fit.rs`) with 3, crowded
+    /// regions (where the fit keeps pulling vertices together) get ~6 collapses per pass for
+    /// ~150 candidates and still hold ~0.05 % of edges below the lower limit after 25
+    /// passes without motion; with 2, every edge is within the limits after 16 passes. On
+    /// the spot oracle reconstruction (`tests/tests/recon_oracle.rs`, default preset) 3
+    /// gives CD 0.0028 with 9 700 triangles, 2 gives CD 0.0032 with 8 272.
+    pub collapse_rank_rounds: u32,
 }
 
 impl Default for RemeshParams {
@@ -42,6 +52,7 @@ impl Default for RemeshParams {
             flip: true,
             remove_valence3: true,
             fold_relaxation_rounds: 10,
+            collapse_rank_rounds: 3,
         }
     }
 }
@@ -382,15 +393,12 @@ pub fn remove_valence3_vertices(
 /// Collapses a far-apart subset of the edges with positive priority (reference A.5b).
 ///
 /// 1. **Independent set**: edges are ranked by `(priority, index)`; an edge wins when no
-///    edge touching a vertex within graph distance 1 of its endpoints ranks higher (two
-///    rounds of max-propagation edge → vertex → edge). The reference runs three rounds
-///    (distance 2); two are the fewest that keep the winners' endpoints pairwise
-///    non-adjacent, so that their face rings are disjoint and each link test stays valid
-///    while the others collapse. Measured in the shape test (`tests/shape_fit.rs`): with
-///    three rounds, crowded regions (where the fit keeps pulling vertices together) get ~6
-///    collapses per pass for ~150 candidates and still hold ~1 % of edges below the lower
-///    limit after 25 passes without motion; with two rounds, remeshing without motion
-///    reaches a fixed point with every edge within the limits after 7 passes.
+///    edge touching a vertex within graph distance `rank_rounds − 1` of its endpoints ranks
+///    higher (`rank_rounds` rounds of max-propagation edge → vertex → edge; the reference
+///    runs 3, and at least 2 are required: the fewest that keep the winners' endpoints
+///    pairwise non-adjacent, so that their face rings are disjoint and each link test stays
+///    valid while the others collapse; fewer are raised to 2). See
+///    [`RemeshParams::collapse_rank_rounds`] for what 2 instead of 3 changes.
 /// 2. **Link condition**: the endpoints may share only the opposite corners of the edge as
 ///    neighbours (≤ 2 common neighbours, where two boundary vertices also share the virtual
 ///    vertex that closes the boundary), and the two may not both have valence 3 (a lone
@@ -408,8 +416,8 @@ pub fn remove_valence3_vertices(
 ///    vertex. The last two *add* collapses and blow up just the same, so the loop of that
 ///    test is sensitive to any change of which collapses run. All measured before
 ///    [`relax_folds`] and [`remove_valence3_vertices`] existed: with those, motion no longer
-///    leaves folds for the collapses to clean up, and the same test ends at ~6.4 k
-///    vertices, 12.7 k triangles.)
+///    leaves folds for the collapses to clean up, and the same test ends at 6.4–6.6 k
+///    vertices (12.7–13.2 k triangles, with 2 or 3 rank rounds).)
 /// 4. **Merge**: the lower index survives with the mean of both rows (all columns); on an
 ///    open mesh, an interior vertex merged with a boundary vertex takes the boundary
 ///    vertex's position, so the boundary does not move inwards. The two faces of the edge
@@ -423,6 +431,7 @@ pub fn collapse_edges<R: VertexRows>(
     alive: &mut [bool],
     table: &EdgeTable,
     priorities: &[f32],
+    rank_rounds: u32,
 ) -> usize {
     let num_vertices = rows.len();
     let edges = &table.edges;
@@ -437,7 +446,7 @@ pub fn collapse_edges<R: VertexRows>(
     }
     let mut vertex_rank = vec![0u32; num_vertices];
     let mut edge_rank = rank.clone();
-    for _ in 0..2 {
+    for _ in 0..rank_rounds.max(2) {
         for (&[a, b], &r) in edges.iter().zip(&edge_rank) {
             vertex_rank[a as usize] = vertex_rank[a as usize].max(r);
             vertex_rank[b as usize] = vertex_rank[b as usize].max(r);
@@ -944,7 +953,7 @@ pub fn remesh<R: VertexRows>(
     }
 
     // Collapse.
-    let collapsed = collapse_edges(rows, &mut faces, &mut alive, &table, &priority);
+    let collapsed = collapse_edges(rows, &mut faces, &mut alive, &table, &priority, params.collapse_rank_rounds);
 
     // Split.
     let mut split = 0;
