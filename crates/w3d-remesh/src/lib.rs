@@ -2,6 +2,11 @@
 //! wonder3d-rs: a per-vertex Adam-like optimizer of vertex positions whose step size is
 //! relative to a per-vertex target edge length, and remesh operations (edge collapse,
 //! split, flip, pack) that run after every step and carry all per-vertex state along.
+//! Two steps that are not in the reference make every remesh leave a clean surface: interior
+//! valence-3 vertices that block collapses are removed, and flipped or zero-area faces left
+//! by the motion are untangled by moving their vertices towards their 1-ring means
+//! ([`RemeshOptions::remove_valence3`], [`RemeshOptions::fold_relaxation_rounds`]; both can
+//! be turned off).
 //!
 //! Meshes are plain arrays: `Vec<[f32; 3]>` positions and `Vec<[u32; 3]>` triangles,
 //! counter-clockwise seen from outside; lengths are in mesh units (the unit cube

@@ -24,11 +24,36 @@ pub struct RemeshParams {
     pub max_vertices: usize,
     /// Run the valence-improving edge flips after split and pack.
     pub flip: bool,
+    /// Not in the reference: before the collapses, remove interior valence-3 vertices that
+    /// touch an edge the pass wants to collapse (see [`remove_valence3_vertices`]); such a
+    /// vertex blocks the link condition of the edges around it (default `true`).
+    pub remove_valence3: bool,
+    /// Not in the reference: at most this many rounds of [`relax_folds`] after the pack, so
+    /// that the pass leaves no flipped and no zero-area faces; 0 turns it off (default 10).
+    pub fold_relaxation_rounds: u32,
+    /// Rounds of rank propagation that pick the far-apart collapses of a pass (see
+    /// [`collapse_edges`]): 3 (the reference, default) or 2 (the fewest that are safe;
+    /// smaller values count as 2). With 2, about twice as many edges collapse per pass in
+    /// crowded regions. Measured: in the shape test (`tests/shape_fit.rs`) with 3, crowded
+    /// regions (where the fit keeps pulling vertices together) get ~6 collapses per pass for
+    /// ~150 candidates and still hold ~0.05 % of edges below the lower limit after 25
+    /// passes without motion; with 2, every edge is within the limits after 16 passes. On
+    /// the spot oracle reconstruction (`tests/tests/recon_oracle.rs`, default preset) 3
+    /// gives CD 0.0028 with 9 700 triangles, 2 gives CD 0.0032 with 8 272.
+    pub collapse_rank_rounds: u32,
 }
 
 impl Default for RemeshParams {
     fn default() -> Self {
-        RemeshParams { area_ratio: 0.5, shortest_probability: 0.8, max_vertices: 1_000_000, flip: true }
+        RemeshParams {
+            area_ratio: 0.5,
+            shortest_probability: 0.8,
+            max_vertices: 1_000_000,
+            flip: true,
+            remove_valence3: true,
+            fold_relaxation_rounds: 10,
+            collapse_rank_rounds: 3,
+        }
     }
 }
 
@@ -41,6 +66,12 @@ pub struct RemeshStats {
     pub split: usize,
     /// Edges flipped.
     pub flipped: usize,
+    /// Valence-3 vertices removed.
+    pub removed_valence3: usize,
+    /// Flipped or zero-area faces found before the fold relaxation.
+    pub folded: usize,
+    /// Flipped or zero-area faces left after the fold relaxation (0 unless it gave up).
+    pub folds_left: usize,
     /// Vertices after the pass.
     pub vertices: usize,
     /// Triangles after the pass.
@@ -239,11 +270,135 @@ impl Adjacency {
     }
 }
 
+/// Removes interior vertices of valence 3 flagged in `candidate` (not in the reference).
+///
+/// An interior valence-3 vertex `v` with the closed fan `(v, a, b), (v, b, c), (v, c, a)`
+/// is deleted and its three faces are replaced by the one face `(a, b, c)`, which keeps
+/// the fan's orientation: the first fan face is rewritten, the other two are marked dead
+/// (`alive = false`); `v`'s row stays, unreferenced, until [`pack`]. On a 2-manifold this
+/// keeps the manifold and its Euler characteristic (V − 1, E − 3, F − 2).
+///
+/// Skipped: boundary vertices (their fan is open), vertices whose neighbours already form a
+/// face (the result would duplicate it; this also covers a neighbour of valence 3 and the
+/// tetrahedron), vertices whose new face would be folded (zero area, or its unit normal
+/// against the sum of the unit normals of the three faces across its edges), and any vertex whose fan shares a vertex with a fan removed earlier in
+/// the same call (so `table` stays valid for every check). Candidates are visited in index
+/// order. Returns the number of removed vertices.
+///
+/// Why: the link condition of [`collapse_edges`] rejects an edge whose opposite corner has
+/// valence 3 (collapsing it would leave that corner with valence 2), so short edges around
+/// such a vertex can never collapse; removing the vertex unblocks them.
+pub fn remove_valence3_vertices(
+    positions: &[[f32; 3]],
+    faces: &mut [[u32; 3]],
+    alive: &mut [bool],
+    table: &EdgeTable,
+    candidate: &[bool],
+) -> usize {
+    let num_vertices = positions.len();
+    let mut slot = vec![NONE; num_vertices];
+    let mut vertices: Vec<u32> = Vec::new();
+    for v in 0..num_vertices {
+        // Three faces forming one closed fan (checked below) means valence 3.
+        if candidate[v] {
+            slot[v] = vertices.len() as u32;
+            vertices.push(v as u32);
+        }
+    }
+    if vertices.is_empty() {
+        return 0;
+    }
+    // The faces around each candidate (a closed valence-3 fan has exactly 3).
+    let mut fan = vec![[NONE; 3]; vertices.len()];
+    let mut fan_size = vec![0u32; vertices.len()];
+    for (f, t) in faces.iter().enumerate() {
+        if !alive[f] {
+            continue;
+        }
+        for &v in t {
+            let s = slot[v as usize];
+            if s != NONE {
+                let s = s as usize;
+                if fan_size[s] < 3 {
+                    fan[s][fan_size[s] as usize] = f as u32;
+                }
+                fan_size[s] += 1;
+            }
+        }
+    }
+    // The two corners after `v` in face `f`, in order.
+    let after = |faces: &[[u32; 3]], f: u32, v: u32| {
+        let t = faces[f as usize];
+        let k = t.iter().position(|&c| c == v).unwrap_or(0);
+        [t[(k + 1) % 3], t[(k + 2) % 3]]
+    };
+    let normal = |t: [u32; 3]| {
+        let [a, b, c] = t.map(|i| v3(positions[i as usize]));
+        (b - a).cross(c - a)
+    };
+    let mut touched = vec![false; num_vertices];
+    let mut removed = 0;
+    for (i, &v) in vertices.iter().enumerate() {
+        if fan_size[i] != 3 {
+            continue;
+        }
+        let [f0, f1, f2] = fan[i];
+        let [a, b] = after(faces, f0, v);
+        let ([b1, c], [c2, a2]) = if after(faces, f1, v)[0] == b {
+            (after(faces, f1, v), after(faces, f2, v))
+        } else {
+            (after(faces, f2, v), after(faces, f1, v))
+        };
+        if b1 != b || c2 != c || a2 != a || [v, a, b, c].iter().any(|&x| touched[x as usize]) {
+            continue;
+        }
+        // Does a face {a, b, c} exist already? It would be the face across ab from v's.
+        let Some(e) = table.find(a, b) else { continue };
+        let exists = table.edge_to_face[e].iter().any(|&half| {
+            half != NONE && {
+                let (f, k) = (half as usize / 3, half as usize % 3);
+                faces[f][(k + 2) % 3] == c
+            }
+        });
+        if exists {
+            continue;
+        }
+        // The new face may not be folded: zero-area, or flipped against the faces across
+        // its edges (the outer faces of the fan, untouched so far).
+        let mut around = Vec3::ZERO;
+        for (x, y) in [(a, b), (b, c), (c, a)] {
+            let Some(e) = table.find(x, y) else { continue };
+            for half in table.edge_to_face[e] {
+                if half != NONE && !faces[half as usize / 3].contains(&v) {
+                    around += normal(faces[half as usize / 3]).normalize_or_zero();
+                }
+            }
+        }
+        let new = normal([a, b, c]).normalize_or_zero();
+        if new == Vec3::ZERO || new.dot(around) < 0.0 {
+            continue;
+        }
+        faces[f0 as usize] = [a, b, c];
+        for f in [f1, f2] {
+            alive[f as usize] = false;
+        }
+        for x in [v, a, b, c] {
+            touched[x as usize] = true;
+        }
+        removed += 1;
+    }
+    removed
+}
+
 /// Collapses a far-apart subset of the edges with positive priority (reference A.5b).
 ///
 /// 1. **Independent set**: edges are ranked by `(priority, index)`; an edge wins when no
-///    edge touching a vertex within graph distance 2 of its endpoints ranks higher (three
-///    rounds of max-propagation edge → vertex → edge).
+///    edge touching a vertex within graph distance `rank_rounds − 1` of its endpoints ranks
+///    higher (`rank_rounds` rounds of max-propagation edge → vertex → edge; the reference
+///    runs 3, and at least 2 are required: the fewest that keep the winners' endpoints
+///    pairwise non-adjacent, so that their face rings are disjoint and each link test stays
+///    valid while the others collapse; fewer are raised to 2). See
+///    [`RemeshParams::collapse_rank_rounds`] for what 2 instead of 3 changes.
 /// 2. **Link condition**: the endpoints may share only the opposite corners of the edge as
 ///    neighbours (≤ 2 common neighbours, where two boundary vertices also share the virtual
 ///    vertex that closes the boundary), and the two may not both have valence 3 (a lone
@@ -259,7 +414,10 @@ impl Adjacency {
 ///    rejecting faces below a quality `2·area / longest²` of 0.1; falling back to an
 ///    endpoint when the midpoint folds; flagging the shortest edge of every valence-3
 ///    vertex. The last two *add* collapses and blow up just the same, so the loop of that
-///    test is sensitive to any change of which collapses run.)
+///    test is sensitive to any change of which collapses run. All measured before
+///    [`relax_folds`] and [`remove_valence3_vertices`] existed: with those, motion no longer
+///    leaves folds for the collapses to clean up, and the same test ends at 6.4–6.6 k
+///    vertices (12.7–13.2 k triangles, with 2 or 3 rank rounds).)
 /// 4. **Merge**: the lower index survives with the mean of both rows (all columns); on an
 ///    open mesh, an interior vertex merged with a boundary vertex takes the boundary
 ///    vertex's position, so the boundary does not move inwards. The two faces of the edge
@@ -273,6 +431,7 @@ pub fn collapse_edges<R: VertexRows>(
     alive: &mut [bool],
     table: &EdgeTable,
     priorities: &[f32],
+    rank_rounds: u32,
 ) -> usize {
     let num_vertices = rows.len();
     let edges = &table.edges;
@@ -287,7 +446,7 @@ pub fn collapse_edges<R: VertexRows>(
     }
     let mut vertex_rank = vec![0u32; num_vertices];
     let mut edge_rank = rank.clone();
-    for _ in 0..3 {
+    for _ in 0..rank_rounds.max(2) {
         for (&[a, b], &r) in edges.iter().zip(&edge_rank) {
             vertex_rank[a as usize] = vertex_rank[a as usize].max(r);
             vertex_rank[b as usize] = vertex_rank[b as usize].max(r);
@@ -468,6 +627,167 @@ pub fn pack<R: VertexRows>(rows: &mut R, faces: &[[u32; 3]], alive: &[bool]) -> 
     faces.iter().zip(alive).filter(|(_, live)| **live).map(|(t, _)| t.map(|v| new_index[v as usize])).collect()
 }
 
+/// Fraction of the way to the 1-ring mean that [`relax_folds`] moves a vertex per round.
+const RELAX_STEP: f32 = 0.5;
+
+/// The face across local edge `k` of face `f` ([`NONE`] on a boundary).
+fn face_across(table: &EdgeTable, f: u32, k: usize) -> u32 {
+    let [left, right] = table.edge_to_face[table.face_to_edge[f as usize][k] as usize];
+    let other = if left == 3 * f + k as u32 { right } else { left };
+    if other == NONE { NONE } else { other / 3 }
+}
+
+/// Whether face `f` is folded: zero-area (no unit normal), or **flipped** — its unit normal
+/// points against the sum of the unit normals of the faces across its three edges (missing
+/// ones on a boundary count as zero).
+fn is_folded(positions: &[[f32; 3]], faces: &[[u32; 3]], table: &EdgeTable, f: u32) -> bool {
+    let unit = |g: u32| {
+        let [a, b, c] = faces[g as usize].map(|v| v3(positions[v as usize]));
+        (b - a).cross(c - a).normalize_or_zero()
+    };
+    let n = unit(f);
+    let mut around = Vec3::ZERO;
+    for k in 0..3 {
+        let g = face_across(table, f, k);
+        if g != NONE {
+            around += unit(g);
+        }
+    }
+    n == Vec3::ZERO || n.dot(around) < 0.0
+}
+
+/// Untangles folds by moving vertices (not in the reference): positions only, no topology
+/// change, no other columns touched.
+///
+/// Finds the **folded** faces — zero-area faces and flipped faces, whose unit normal points
+/// against the sum of the unit normals of their edge neighbours — and, for at most `rounds`
+/// rounds, moves the interior corners of every folded face half-way to the mean of their
+/// 1-ring neighbours (a uniform Laplacian step, which pulls a vertex that was pushed through
+/// its neighbours back between them), then re-evaluates the faces around the moved vertices.
+/// From the fourth round on, faces still folded move their corners' 1-ring too, and from
+/// the seventh two rings. Boundary vertices never move. `table` must be the edge table of
+/// `faces`. Cost is proportional to the number of faces on a mesh without folds (one normal
+/// and one test per face) and to the size of the folded regions otherwise.
+///
+/// Returns `(folded faces found, folded faces left)`.
+pub fn relax_folds<R: VertexRows>(rows: &mut R, faces: &[[u32; 3]], table: &EdgeTable, rounds: u32) -> (usize, usize) {
+    // A face can only be flipped if it points away from one of its neighbours, so the full
+    // test runs on those few (and on zero-area faces).
+    let positions = rows.positions();
+    let raw: Vec<Vec3> = faces
+        .iter()
+        .map(|t| {
+            let a = v3(positions[t[0] as usize]);
+            (v3(positions[t[1] as usize]) - a).cross(v3(positions[t[2] as usize]) - a)
+        })
+        .collect();
+    let mut suspect: Vec<bool> = raw.iter().map(|&n| n == Vec3::ZERO).collect();
+    for [left, right] in &table.edge_to_face {
+        if *left != NONE && *right != NONE {
+            let (f, g) = (*left as usize / 3, *right as usize / 3);
+            if raw[f].dot(raw[g]) < 0.0 {
+                suspect[f] = true;
+                suspect[g] = true;
+            }
+        }
+    }
+    let mut bad: Vec<u32> =
+        (0..faces.len() as u32).filter(|&f| suspect[f as usize] && is_folded(positions, faces, table, f)).collect();
+    drop((raw, suspect));
+    let found = bad.len();
+    if found == 0 || rounds == 0 {
+        return (found, found);
+    }
+    let num_vertices = rows.len();
+    let on_boundary = table.boundary_vertices(num_vertices);
+    let adjacency = Adjacency::new(table, num_vertices);
+    // Vertex → incident faces (compressed rows).
+    let mut start = vec![0u32; num_vertices + 1];
+    for t in faces {
+        for &v in t {
+            start[v as usize + 1] += 1;
+        }
+    }
+    for v in 0..num_vertices {
+        start[v + 1] += start[v];
+    }
+    let mut cursor = start[..num_vertices].to_vec();
+    let mut incident = vec![0u32; start[num_vertices] as usize];
+    for (f, t) in faces.iter().enumerate() {
+        for &v in t {
+            incident[cursor[v as usize] as usize] = f as u32;
+            cursor[v as usize] += 1;
+        }
+    }
+    let faces_of = |v: u32| &incident[start[v as usize] as usize..start[v as usize + 1] as usize];
+
+    let mut vertex_mark = vec![u32::MAX; num_vertices];
+    let mut face_mark = vec![u32::MAX; faces.len()];
+    for round in 0..rounds {
+        // The vertices to move: corners of folded faces, grown by 0, 1 or 2 rings.
+        let mut moving: Vec<u32> = Vec::new();
+        for &f in &bad {
+            for &v in &faces[f as usize] {
+                if vertex_mark[v as usize] != round {
+                    vertex_mark[v as usize] = round;
+                    moving.push(v);
+                }
+            }
+        }
+        for _ in 0..(round / 3).min(2) {
+            let ring_end = moving.len();
+            for i in 0..ring_end {
+                for &n in adjacency.of(moving[i]) {
+                    if vertex_mark[n as usize] != round {
+                        vertex_mark[n as usize] = round;
+                        moving.push(n);
+                    }
+                }
+            }
+        }
+        moving.retain(|&v| !on_boundary[v as usize]);
+        let positions = rows.positions();
+        let targets: Vec<[f32; 3]> = moving
+            .iter()
+            .map(|&v| {
+                let ring = adjacency.of(v);
+                let mean = ring.iter().map(|&n| v3(positions[n as usize])).sum::<Vec3>() / ring.len().max(1) as f32;
+                let p = v3(positions[v as usize]);
+                (p + (mean - p) * RELAX_STEP).to_array()
+            })
+            .collect();
+        for (&v, &p) in moving.iter().zip(&targets) {
+            rows.set_position(v as usize, p);
+        }
+        // Re-evaluate the faces around the moved vertices and their edge neighbours.
+        let mut changed: Vec<u32> = Vec::new();
+        for &v in &moving {
+            for &f in faces_of(v) {
+                if face_mark[f as usize] != round {
+                    face_mark[f as usize] = round;
+                    changed.push(f);
+                }
+            }
+        }
+        let mut check = changed.clone();
+        for &f in &changed {
+            for k in 0..3 {
+                let g = face_across(table, f, k);
+                if g != NONE && face_mark[g as usize] != round {
+                    face_mark[g as usize] = round;
+                    check.push(g);
+                }
+            }
+        }
+        bad.retain(|&f| face_mark[f as usize] != round && is_folded(rows.positions(), faces, table, f));
+        bad.extend(check.iter().copied().filter(|&f| is_folded(rows.positions(), faces, table, f)));
+        if bad.is_empty() {
+            break;
+        }
+    }
+    (found, bad.len())
+}
+
 /// Flips interior edges to move vertex valences towards 6 (4 on a boundary) (reference
 /// A.8).
 ///
@@ -565,14 +885,22 @@ pub fn flip_edges(
     flipped
 }
 
-/// One continuous-remeshing pass (reference A.3): collapse → split → pack → flip.
+/// One continuous-remeshing pass (reference A.3, plus two steps of ours): [valence-3
+/// removal] → collapse → split → pack → [fold relaxation] → flip.
 ///
 /// `min_edge_length` / `max_edge_length` are per-vertex thresholds (the optimizer uses
 /// `ref_len · (1 ∓ tol)`). Edges shorter than the mean of their endpoints' minimum, and
-/// one edge of every flipped or small face, are collapsed (a far-apart subset per pass);
+/// one edge of every flipped or small face, want to collapse. With
+/// `params.remove_valence3`, interior valence-3 vertices at such an edge are removed first
+/// ([`remove_valence3_vertices`]). Then a far-apart subset of those edges is collapsed;
 /// then, unless the mesh has `max_vertices` rows, every edge longer than the mean of its
 /// endpoints' maximum is split once (using the thresholds from before the collapse, as the
-/// reference does); then deleted faces and unused rows are packed; then edges are flipped.
+/// reference does); then deleted faces and unused rows are packed; then, with
+/// `params.fold_relaxation_rounds > 0`, flipped and zero-area faces are untangled by moving
+/// vertices ([`relax_folds`]); then edges are flipped (a flip never folds a face, so when
+/// the relaxation removed every fold, the pass returns a mesh without flipped or zero-area
+/// faces). With both extra steps off, this is the reference pass up to the deviations
+/// documented on [`collapse_edges`] and [`flip_edges`].
 ///
 /// Returns the new triangles, the unique edges of the new triangles (in no particular
 /// order) and what was done. `rows` are rewritten in place.
@@ -588,22 +916,44 @@ pub fn remesh<R: VertexRows>(
     let mut alive = vec![true; faces.len()];
     let num_vertices = rows.len();
 
+    // Collapse priorities: flagged faces' edges, and edges below their minimum length.
+    let priorities = |faces: &[[u32; 3]], alive: &[bool], table: &EdgeTable| -> Vec<f32> {
+        let length = table.lengths(rows.positions());
+        let flags = face_collapse_flags(rows.positions(), faces, alive, table, &length, min_edge_length, params, seed);
+        table
+            .edges
+            .iter()
+            .zip(&length)
+            .zip(&flags)
+            .map(|((&[a, b], &len), &flag)| {
+                let min = 0.5 * (min_edge_length[a as usize] + min_edge_length[b as usize]);
+                let shortness = (1.0 - len / min).max(0.0);
+                f32::from(u8::from(flag)) + shortness
+            })
+            .collect()
+    };
+    let mut table = EdgeTable::new(&faces, None, num_vertices);
+    let mut priority = priorities(&faces, &alive, &table);
+
+    // Valence-3 vertices at an edge that wants to collapse block its neighbours' collapses.
+    let mut removed_valence3 = 0;
+    if params.remove_valence3 && priority.iter().any(|&p| p > 0.0) {
+        let mut candidate = vec![false; num_vertices];
+        for (&[a, b], &p) in table.edges.iter().zip(&priority) {
+            if p > 0.0 {
+                candidate[a as usize] = true;
+                candidate[b as usize] = true;
+            }
+        }
+        removed_valence3 = remove_valence3_vertices(rows.positions(), &mut faces, &mut alive, &table, &candidate);
+        if removed_valence3 > 0 {
+            table = EdgeTable::new(&faces, Some(&alive), num_vertices);
+            priority = priorities(&faces, &alive, &table);
+        }
+    }
+
     // Collapse.
-    let table = EdgeTable::new(&faces, None, num_vertices);
-    let length = table.lengths(rows.positions());
-    let flags = face_collapse_flags(rows.positions(), &faces, &alive, &table, &length, min_edge_length, params, seed);
-    let priority: Vec<f32> = table
-        .edges
-        .iter()
-        .zip(&length)
-        .zip(&flags)
-        .map(|((&[a, b], &len), &flag)| {
-            let min = 0.5 * (min_edge_length[a as usize] + min_edge_length[b as usize]);
-            let shortness = (1.0 - len / min).max(0.0);
-            f32::from(u8::from(flag)) + shortness
-        })
-        .collect();
-    let collapsed = collapse_edges(rows, &mut faces, &mut alive, &table, &priority);
+    let collapsed = collapse_edges(rows, &mut faces, &mut alive, &table, &priority, params.collapse_rank_rounds);
 
     // Split.
     let mut split = 0;
@@ -621,9 +971,15 @@ pub fn remesh<R: VertexRows>(
         split = split_edges(rows, &mut faces, &mut alive, &table, &too_long);
     }
 
-    // Pack and flip.
+    // Pack, relax folds (positions only, so the table stays valid) and flip (which never
+    // folds a face that was not folded).
     let mut faces = pack(rows, &faces, &alive);
     let table = EdgeTable::new(&faces, None, rows.len());
+    let (folded, folds_left) = if params.fold_relaxation_rounds > 0 {
+        relax_folds(rows, &faces, &table, params.fold_relaxation_rounds)
+    } else {
+        (0, 0)
+    };
     let mut edges = table.edges.clone();
     let mut flipped = 0;
     if params.flip {
@@ -633,6 +989,15 @@ pub fn remesh<R: VertexRows>(
             edges[e] = new_edge;
         }
     }
-    let stats = RemeshStats { collapsed, split, flipped, vertices: rows.len(), triangles: faces.len() };
+    let stats = RemeshStats {
+        collapsed,
+        split,
+        flipped,
+        removed_valence3,
+        folded,
+        folds_left,
+        vertices: rows.len(),
+        triangles: faces.len(),
+    };
     (faces, edges, stats)
 }

@@ -64,7 +64,10 @@ type LengthField = Box<dyn Fn([f32; 3]) -> f32 + Send + Sync>;
 /// the next gradient.
 ///
 /// The input must be a consistently oriented 2-manifold (closed or open) whose every vertex
-/// is used. Closed meshes stay closed and keep their genus. **Open meshes**: boundary edges
+/// is used. Closed meshes stay closed and keep their genus. With the default fold
+/// relaxation, a remesh leaves no flipped face (unit normal against the sum of its edge
+/// neighbours' unit normals) and no zero-area face unless the relaxation gives up after
+/// its rounds ([`RemeshStats::folds_left`] reports that; never seen in the tests). **Open meshes**: boundary edges
 /// are never flipped; an interior edge joining two boundary vertices is never collapsed
 /// (that would pinch the surface); a collapse between an interior and a boundary vertex
 /// keeps the boundary vertex's position; boundary edges may be split and collapsed (their
@@ -264,7 +267,8 @@ impl MeshOptimizer {
         Ok(())
     }
 
-    /// Remeshes (collapse → split → pack → flip, see [`ops::remesh`]) when the step count
+    /// Remeshes (valence-3 removal → collapse → split → pack → fold relaxation → flip, see
+    /// [`ops::remesh`]) when the step count
     /// is a multiple of `remesh_interval` (always with the default interval 1); otherwise
     /// does nothing and reports zero operations. All per-vertex state follows the vertices.
     pub fn remesh(&mut self) -> RemeshStats {

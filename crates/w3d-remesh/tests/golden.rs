@@ -40,7 +40,7 @@ fn collapse_single() {
     assert_eq!(table.edges[4], [2, 3]);
     let mut priority = vec![0.0; table.edges.len()];
     priority[4] = 1.0;
-    let n = ops::collapse_edges(&mut positions, &mut faces, &mut alive, &table, &priority);
+    let n = ops::collapse_edges(&mut positions, &mut faces, &mut alive, &table, &priority, 3);
     assert_eq!(n, 1);
     assert_eq!(&positions[..3], &[[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.5, 1.0, 0.0]]);
     assert_eq!(alive, vec![true, false, false]);
@@ -60,7 +60,7 @@ fn collapse_respects_link_condition() {
     let mut priority = vec![0.0; table.edges.len()];
     priority[9] = 1.0;
     let (before_p, before_f) = (positions.clone(), faces.clone());
-    let n = ops::collapse_edges(&mut positions, &mut faces, &mut alive, &table, &priority);
+    let n = ops::collapse_edges(&mut positions, &mut faces, &mut alive, &table, &priority, 3);
     assert_eq!(n, 0);
     assert_eq!(positions, before_p);
     assert_eq!(faces, before_f);
