@@ -4,7 +4,7 @@
 
 use std::collections::HashMap;
 
-use crate::Mesh;
+use crate::{Error, Mesh, Result};
 use glam::DVec3;
 
 impl Mesh {
@@ -13,13 +13,29 @@ impl Mesh {
     /// in f64. Empty for a mesh without self-intersections; the check behind "no
     /// self-intersections" in the reconstruction reports.
     pub fn self_intersections(&self) -> Vec<[u32; 2]> {
-        self_intersections(self)
+        crossing_pairs(self.positions(), self.triangles())
     }
 }
 
-fn self_intersections(mesh: &Mesh) -> Vec<[u32; 2]> {
-    let p: Vec<DVec3> = mesh.positions().iter().map(|v| DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64)).collect();
-    let tris = mesh.triangles();
+/// [`Mesh::self_intersections`] on plain arrays, for loops that move vertices and check
+/// again without building a [`Mesh`] each time: the crossing triangle pairs (smaller index
+/// first, sorted) of `triangles` over `positions`. Fails when a triangle names a vertex
+/// that `positions` does not have.
+pub fn self_intersections(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Result<Vec<[u32; 2]>> {
+    if let Some((t, tri)) =
+        triangles.iter().enumerate().find(|(_, tri)| tri.iter().any(|&v| v as usize >= positions.len()))
+    {
+        return Err(Error::invalid(
+            format!("triangles[{t}]"),
+            format!("vertex indices below {}, got {tri:?}", positions.len()),
+        ));
+    }
+    Ok(crossing_pairs(positions, triangles))
+}
+
+/// The crossing pairs; every index of `tris` is below `positions.len()`.
+fn crossing_pairs(positions: &[[f32; 3]], tris: &[[u32; 3]]) -> Vec<[u32; 2]> {
+    let p: Vec<DVec3> = positions.iter().map(|v| DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64)).collect();
     if tris.len() < 2 {
         return Vec::new();
     }
@@ -122,5 +138,13 @@ mod tests {
         assert!(crossing.iter().all(|&[a, b]| a < 4 && b >= 4), "{crossing:?}");
         let (p, t) = tetra([0.0; 3]);
         assert!(Mesh::new(p, t).unwrap().self_intersections().is_empty());
+    }
+
+    #[test]
+    fn the_slice_entry_agrees_with_the_mesh_and_rejects_bad_indices() {
+        let mesh = two([0.2, 0.2, 0.2]);
+        assert_eq!(self_intersections(mesh.positions(), mesh.triangles()).unwrap(), mesh.self_intersections());
+        let err = self_intersections(&mesh.positions()[..7], mesh.triangles()).unwrap_err().to_string();
+        assert!(err.contains("triangles[") && err.contains("below 7"), "{err}");
     }
 }

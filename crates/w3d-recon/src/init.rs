@@ -37,7 +37,7 @@ use glam::Vec3;
 use rayon::prelude::*;
 use serde::Serialize;
 use w3d_core::{Camera, Error, Image, Mesh, Projection, Result, ViewRig, ViewSet};
-use w3d_raster::render_mask;
+use w3d_raster::rasterize_rig;
 use w3d_remesh::{MeshOptimizer, RemeshOptions};
 
 use crate::coarse::silhouette_sphere;
@@ -126,6 +126,19 @@ pub struct InitReport {
 /// (see the module docs). Needs views named `front` and `back` in the rig for the Poisson
 /// path; without them it falls back to the sphere and says so in the report.
 pub fn initial_mesh(views: &ViewSet, rig: &ViewRig, options: &InitOptions) -> Result<(Mesh, InitReport)> {
+    let (mesh, report, _) = start_meshes(views, rig, options, false)?;
+    Ok((mesh, report))
+}
+
+/// [`initial_mesh`], and with `want_alternative` also the [`visual_hull_mesh`] (from the
+/// hull field already computed for carving) when the Poisson start's worst silhouette IoU
+/// is below [`InitOptions::hull_alternative_iou`].
+pub(crate) fn start_meshes(
+    views: &ViewSet,
+    rig: &ViewRig,
+    options: &InitOptions,
+    want_alternative: bool,
+) -> Result<(Mesh, InitReport, Option<Mesh>)> {
     views.validate(rig)?;
     if options.grid < 8 || options.grid > 512 {
         return Err(Error::invalid("InitOptions::grid", format!("8 to 512 cells, got {}", options.grid)));
@@ -134,7 +147,7 @@ pub fn initial_mesh(views: &ViewSet, rig: &ViewRig, options: &InitOptions) -> Re
         return Err(Error::invalid("InitOptions", "extent > 0, edge_length > 0 and screening ≥ 0"));
     }
     let start = Instant::now();
-    let sphere = |reason: String, front: Option<f32>, back: Option<f32>| -> Result<(Mesh, InitReport)> {
+    let sphere = |reason: String, front: Option<f32>, back: Option<f32>| -> Result<(Mesh, InitReport, Option<Mesh>)> {
         let mesh = silhouette_sphere(views, rig, 3)?;
         let report = InitReport {
             choice: InitChoice::Sphere,
@@ -145,7 +158,7 @@ pub fn initial_mesh(views: &ViewSet, rig: &ViewRig, options: &InitOptions) -> Re
             triangles: mesh.triangle_count(),
             seconds: start.elapsed().as_secs_f64(),
         };
-        Ok((mesh, report))
+        Ok((mesh, report, None))
     };
     if options.force_sphere {
         return sphere("sphere requested (InitOptions::force_sphere)".into(), None, None);
@@ -199,6 +212,11 @@ pub fn initial_mesh(views: &ViewSet, rig: &ViewRig, options: &InitOptions) -> Re
     };
     let mesh = taubin_smooth(&simplify(&mesh, options.edge_length)?, options.smoothing_iterations)?;
     let (worst_iou, worst_view) = silhouette_agreement(&mesh, views, rig)?;
+    let alternative = if want_alternative && worst_iou < options.hull_alternative_iou {
+        Some(hull_mesh(&grid, &hull, options)?)
+    } else {
+        None
+    };
     let report = InitReport {
         choice: InitChoice::Poisson,
         reason: format!(
@@ -210,7 +228,7 @@ pub fn initial_mesh(views: &ViewSet, rig: &ViewRig, options: &InitOptions) -> Re
         triangles: mesh.triangle_count(),
         seconds: start.elapsed().as_secs_f64(),
     };
-    Ok((mesh, report))
+    Ok((mesh, report, alternative))
 }
 
 /// The visual hull of all the rig's masks as a closed start mesh (marching tetrahedra on
@@ -222,25 +240,30 @@ pub fn initial_mesh(views: &ViewSet, rig: &ViewRig, options: &InitOptions) -> Re
 pub fn visual_hull_mesh(views: &ViewSet, rig: &ViewRig, options: &InitOptions) -> Result<Mesh> {
     views.validate(rig)?;
     let grid = Grid::new(options.grid, options.extent);
-    let field: Vec<f32> = visual_hull(&grid, views, rig).iter().map(|&m| 0.5 - m).collect();
-    let Some(mesh) = marching_tetrahedra(&grid, &field)? else {
+    hull_mesh(&grid, &visual_hull(&grid, views, rig), options)
+}
+
+/// The surface of a [`visual_hull`] field, simplified and smoothed as the start meshes are.
+fn hull_mesh(grid: &Grid, hull: &[f32], options: &InitOptions) -> Result<Mesh> {
+    let field: Vec<f32> = hull.iter().map(|&m| 0.5 - m).collect();
+    let Some(mesh) = marching_tetrahedra(grid, &field)? else {
         return Err(Error::invalid("views masks", "silhouettes whose visual hull is not empty"));
     };
     taubin_smooth(&simplify(&mesh, options.edge_length)?, options.smoothing_iterations)
 }
 
-/// The smallest silhouette IoU of `mesh` over the rig's views (rendered masks against the
-/// views' masks, both thresholded at 0.5) and the name of that view.
+/// The smallest silhouette IoU of `mesh` over the rig's views (the mesh's pixel-centre
+/// coverage against the views' masks thresholded at 0.5) and the name of that view.
 fn silhouette_agreement(mesh: &Mesh, views: &ViewSet, rig: &ViewRig) -> Result<(f32, String)> {
     let (w, h) = (views.width(), views.height());
     if w != h {
         return Err(Error::invalid("views", format!("square images for the silhouette check, got {w}×{h}")));
     }
-    let rendered = render_mask(mesh, rig, w)?;
+    let rasters = rasterize_rig(mesh, rig, w)?;
     let mut worst = (f32::INFINITY, String::new());
-    for ((ours, view), rv) in rendered.iter().zip(&views.views).zip(&rig.views) {
+    for ((raster, view), rv) in rasters.iter().zip(&views.views).zip(&rig.views) {
         let (mut both, mut either) = (0usize, 0usize);
-        for (&a, &b) in ours.data().iter().zip(view.mask.data()) {
+        for (&a, &b) in raster.coverage().iter().zip(view.mask.data()) {
             both += usize::from(a >= 0.5 && b >= 0.5);
             either += usize::from(a >= 0.5 || b >= 0.5);
         }

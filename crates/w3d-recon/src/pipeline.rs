@@ -9,7 +9,7 @@ use serde::Serialize;
 use w3d_core::{Error, Mesh, Result, ViewRig, ViewSet};
 
 use crate::coarse::{CoarseOptions, CoarseReport, reconstruct_coarse};
-use crate::init::{InitChoice, InitOptions, InitReport, initial_mesh, visual_hull_mesh};
+use crate::init::{InitChoice, InitOptions, InitReport, start_meshes};
 use crate::untangle::{UntangleReport, untangle};
 
 /// Named speed/accuracy trade-offs of [`ReconOptions`] (numbers in `docs/accuracy.md`).
@@ -145,10 +145,10 @@ pub struct ReconReport {
 }
 
 /// Reconstructs a closed mesh, in the rig's world frame, from the normal maps and masks of
-/// `views` (one per view of `rig`, same order): [`initial_mesh`] then
+/// `views` (one per view of `rig`, same order): [`crate::initial_mesh`] then
 /// [`reconstruct_coarse`], then [`untangle`]. When the Poisson start misses a silhouette (IoU below
 /// [`InitOptions::hull_alternative_iou`]), the coarse stage also runs from
-/// [`visual_hull_mesh`] and the result with the lower final loss is kept (the report says
+/// [`crate::visual_hull_mesh`] and the result with the lower final loss is kept (the report says
 /// which, with both losses). `progress` receives [`Progress`] events (pass `&mut |_| {}` to
 /// ignore them).
 pub fn reconstruct(
@@ -159,18 +159,9 @@ pub fn reconstruct(
 ) -> Result<(Mesh, ReconReport)> {
     let start = Instant::now();
     progress(Progress { stage: Stage::Init, done: 0, total: 1, loss: None });
-    let (init, mut init_report) = initial_mesh(views, rig, &options.init)?;
     // A Poisson start that misses a silhouette badly may sit in the wrong basin: also
     // optimise from the visual hull and keep the lower final loss.
-    let alternative = match init_report.silhouette_iou {
-        Some(iou) if iou < options.init.hull_alternative_iou => {
-            let t = Instant::now();
-            let hull = visual_hull_mesh(views, rig, &options.init)?;
-            init_report.seconds += t.elapsed().as_secs_f64();
-            Some(hull)
-        }
-        _ => None,
-    };
+    let (init, mut init_report, alternative) = start_meshes(views, rig, &options.init, true)?;
     progress(Progress { stage: Stage::Init, done: 1, total: 1, loss: None });
     let runs = 1 + usize::from(alternative.is_some());
     let total = options.coarse.steps * runs;

@@ -11,7 +11,7 @@
 
 use glam::Vec3;
 use serde::Serialize;
-use w3d_core::{Mesh, Result};
+use w3d_core::{Mesh, Result, self_intersections};
 
 /// What [`untangle`] did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -85,7 +85,7 @@ pub fn untangle(mesh: &Mesh, max_rounds: usize) -> Result<(Mesh, UntangleReport)
             }
         }
         rounds += 1;
-        let left = Mesh::new(positions.clone(), triangles.clone())?.self_intersections();
+        let left = self_intersections(&positions, &triangles)?;
         if left.len() >= pairs.len() {
             rings = (rings + 1).min(MAX_RINGS); // stuck: widen the neighbourhood
         }

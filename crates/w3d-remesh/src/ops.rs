@@ -34,12 +34,11 @@ pub struct RemeshParams {
     /// Rounds of rank propagation that pick the far-apart collapses of a pass (see
     /// [`collapse_edges`]): 3 (the reference, default) or 2 (the fewest that are safe;
     /// smaller values count as 2). With 2, about twice as many edges collapse per pass in
-    /// crowded regions. Measured: in the shape test (`tests/shape_fit.rs`) with 3, crowded
-    /// regions (where the fit keeps pulling vertices together) get ~6 collapses per pass for
-    /// ~150 candidates and still hold ~0.05 % of edges below the lower limit after 25
-    /// passes without motion; with 2, every edge is within the limits after 16 passes. On
-    /// the spot oracle reconstruction (`tests/tests/recon_oracle.rs`, default preset) 3
-    /// gives CD 0.0028 with 9 700 triangles, 2 gives CD 0.0032 with 8 272.
+    /// crowded regions, which is why the optimizer's floor passes use 2 (see
+    /// [`crate::RemeshOptions::edge_floor_passes`]). Measured for the main pass, before the
+    /// floor passes existed: on the spot oracle reconstruction
+    /// (`tests/tests/recon_oracle.rs`, default preset) 3 gives CD 0.0028 with 9 700
+    /// triangles, 2 gives CD 0.0032 with 8 272.
     pub collapse_rank_rounds: u32,
 }
 
@@ -72,6 +71,9 @@ pub struct RemeshStats {
     pub folded: usize,
     /// Flipped or zero-area faces left after the fold relaxation (0 unless it gave up).
     pub folds_left: usize,
+    /// Extra collapse-only passes run by [`crate::MeshOptimizer::remesh`] for edges below
+    /// the hard lower limit (see [`crate::RemeshOptions::edge_floor_passes`]; 0 here).
+    pub floor_passes: usize,
     /// Vertices after the pass.
     pub vertices: usize,
     /// Triangles after the pass.
@@ -403,8 +405,12 @@ pub fn remove_valence3_vertices(
 ///    neighbours (≤ 2 common neighbours, where two boundary vertices also share the virtual
 ///    vertex that closes the boundary), and the two may not both have valence 3 (a lone
 ///    tetrahedron). Together these keep a 2-manifold a 2-manifold of the same topology.
-/// 3. **Fold-over guard** (not in the reference): the collapse is skipped when a surviving
-///    face around the edge would turn its normal by 90° or more, or vanish. (Stricter
+/// 3. **Fold-over guard** (not in the reference): the merged vertex goes to the midpoint,
+///    or, when that would turn a surviving face around the edge by 90° or more (or make it
+///    vanish), to the first of the two endpoints and the mean of the two 1-rings that does
+///    not; the collapse is skipped when none of them works. The fallbacks matter where the
+///    fit keeps pulling vertices into a crease: there the midpoint folds a face, and without
+///    them a few edges stay below the lower limit pass after pass. (Stricter
 ///    guards block the collapses that clean up the folds made by motion: in the shape test
 ///    (`tests/shape_fit.rs`) the mesh then grows without bound — from ~30 k to 10⁵–10⁶
 ///    triangles within 300 steps, with the flipped faces growing alike. Measured variants,
@@ -418,9 +424,10 @@ pub fn remove_valence3_vertices(
 ///    [`relax_folds`] and [`remove_valence3_vertices`] existed: with those, motion no longer
 ///    leaves folds for the collapses to clean up, and the same test ends at 6.4–6.6 k
 ///    vertices (12.7–13.2 k triangles, with 2 or 3 rank rounds).)
-/// 4. **Merge**: the lower index survives with the mean of both rows (all columns); on an
-///    open mesh, an interior vertex merged with a boundary vertex takes the boundary
-///    vertex's position, so the boundary does not move inwards. The two faces of the edge
+/// 4. **Merge**: the lower index survives with the mean of both rows (all columns) at the
+///    position picked in 3; on an open mesh, an interior vertex merged with a boundary
+///    vertex takes the boundary vertex's position (or the collapse is skipped when that
+///    folds a face), so the boundary does not move inwards. The two faces of the edge
 ///    are deleted (`alive = false`).
 ///
 /// Returns the number of collapsed edges. Vertex rows of the removed endpoints stay in
@@ -519,20 +526,49 @@ pub fn collapse_edges<R: VertexRows>(
             (false, true) => Some(positions[d as usize]),
             _ => None,
         };
-        let p = v3(pin.unwrap_or_else(|| mean3(positions[s as usize], positions[d as usize])));
         let faces_of = &ring[start[w] as usize..start[w + 1] as usize];
-        let folds = faces_of.iter().any(|&f| {
-            let t = faces[f as usize];
-            if t.contains(&s) && t.contains(&d) {
-                return false; // deleted by the collapse
+        // Where the merged vertex may go without folding a face of the two 1-rings: the
+        // midpoint (the reference), else either endpoint (a half-edge collapse, which keeps
+        // a tip or a crease where the midpoint would turn a face over).
+        let folds = |p: Vec3| {
+            faces_of.iter().any(|&f| {
+                let t = faces[f as usize];
+                if t.contains(&s) && t.contains(&d) {
+                    return false; // deleted by the collapse
+                }
+                let old = t.map(|v| v3(positions[v as usize]));
+                let new = t.map(|v| if v == s || v == d { p } else { v3(positions[v as usize]) });
+                let n_old = (old[1] - old[0]).cross(old[2] - old[0]);
+                let n_new = (new[1] - new[0]).cross(new[2] - new[0]);
+                n_old.dot(n_new) <= 0.0
+            })
+        };
+        let ring_mean = {
+            let (mut sum, mut count) = (Vec3::ZERO, 0.0f32);
+            for &f in faces_of {
+                for v in faces[f as usize] {
+                    if v != s && v != d {
+                        sum += v3(positions[v as usize]);
+                        count += 1.0;
+                    }
+                }
             }
-            let old = t.map(|v| v3(positions[v as usize]));
-            let new = t.map(|v| if v == s || v == d { p } else { v3(positions[v as usize]) });
-            let n_old = (old[1] - old[0]).cross(old[2] - old[0]);
-            let n_new = (new[1] - new[0]).cross(new[2] - new[0]);
-            n_old.dot(n_new) <= 0.0
-        });
-        if !folds {
+            (sum / count.max(1.0)).to_array()
+        };
+        let target = match pin {
+            Some(p) => (!folds(v3(p))).then_some(Some(p)),
+            None => [
+                mean3(positions[s as usize], positions[d as usize]),
+                positions[s as usize],
+                positions[d as usize],
+                ring_mean,
+            ]
+            .into_iter()
+            .enumerate()
+            .find(|&(_, p)| !folds(v3(p)))
+            .map(|(k, p)| (k > 0).then_some(p)),
+        };
+        if let Some(pin) = target {
             merges.push((w as u32, e, pin));
         }
     }
@@ -996,6 +1032,7 @@ pub fn remesh<R: VertexRows>(
         removed_valence3,
         folded,
         folds_left,
+        floor_passes: 0,
         vertices: rows.len(),
         triangles: faces.len(),
     };

@@ -290,8 +290,33 @@ impl MeshOptimizer {
         let seed = self.options.seed ^ self.remeshes.wrapping_mul(0x9E37_79B9_7F4A_7C15);
         self.remeshes += 1;
         let triangles = std::mem::take(&mut self.triangles);
-        let (triangles, edges, stats) =
-            ops::remesh(&mut self.state, triangles, &min_len, &max_len, &self.options.params(), seed);
+        let params = self.options.params();
+        let (mut triangles, mut edges, mut stats) =
+            ops::remesh(&mut self.state, triangles, &min_len, &max_len, &params, seed);
+        // Floor passes: a pass collapses only a far-apart subset of the short edges, so a few
+        // can stay below the hard lower limit; collapse just those (no splits).
+        let floor = self.options.edge_len_lims.0 * (1.0 - tol);
+        let floor_params = ops::RemeshParams { collapse_rank_rounds: 2, ..params };
+        for pass in 0..self.options.edge_floor_passes {
+            let p = &self.state.positions;
+            if !edges.iter().any(|&[a, b]| crate::edges::distance(p[a as usize], p[b as usize]) < floor) {
+                break;
+            }
+            let n = p.len();
+            let seed = seed ^ (u64::from(pass) + 1).wrapping_mul(0xD1B5_4A32_D192_ED03);
+            let (t, e, more) =
+                ops::remesh(&mut self.state, triangles, &vec![floor; n], &vec![f32::INFINITY; n], &floor_params, seed);
+            (triangles, edges) = (t, e);
+            stats = RemeshStats {
+                collapsed: stats.collapsed + more.collapsed,
+                split: stats.split + more.split,
+                flipped: stats.flipped + more.flipped,
+                removed_valence3: stats.removed_valence3 + more.removed_valence3,
+                folded: stats.folded + more.folded,
+                floor_passes: stats.floor_passes + 1,
+                ..more
+            };
+        }
         self.triangles = triangles;
         self.edges = edges;
         stats

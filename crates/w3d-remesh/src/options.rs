@@ -26,13 +26,13 @@ pub struct RemeshOptions {
     /// Edges are collapsed below `ref_len · (1 − tol)` and split above `ref_len · (1 + tol)`
     /// (0.5), which drives every edge into `[lims.0 · (1 − tol), lims.1 · (1 + tol)]`.
     ///
-    /// One remesh does not guarantee this for every edge: a pass collapses only a far-apart
-    /// subset of the short edges, a collapse lengthens the edges around it (split in the
-    /// next pass), and splitting the long edge of a sliver cuts off a short one. Measured in the shape test (`tests/shape_fit.rs`, spot,
-    /// limits (0.02, 0.15), 300 steps): right after the last step 26 of 19 149 edges (0.14 %)
-    /// lie below `lims.0 · (1 − tol)`, the shortest at 0.30 of it; remeshing without motion
-    /// then brings every edge within the limits (16 passes, with `collapse_rank_rounds` 2),
-    /// and the test asserts that.
+    /// One reference pass does not guarantee this for every edge: it collapses only a
+    /// far-apart subset of the short edges, a collapse lengthens the edges around it (split
+    /// in the next pass), and splitting the long edge of a sliver cuts off a short one (in
+    /// the shape test, `tests/shape_fit.rs`, ~40–70 edges of ~19 000 are below
+    /// `lims.0 · (1 − tol)` after the reference pass in a typical step). The
+    /// [`RemeshOptions::edge_floor_passes`] collapse those, so that every edge ends above the
+    /// lower limit.
     pub edge_len_tol: f32,
     /// Gain of the edge-length controller (0.2).
     pub gain: f32,
@@ -69,10 +69,17 @@ pub struct RemeshOptions {
     /// [`crate::ops::relax_folds`]).
     pub fold_relaxation_rounds: u32,
     /// Rounds of rank propagation that space the collapses of one remesh apart: 3 (the
-    /// reference) or 2 (more collapses per pass; values below 2 count as 2). 2 is what
-    /// brings every edge within the limits in the shape test; see
-    /// [`crate::RemeshParams::collapse_rank_rounds`] for the measured trade-off (3).
+    /// reference) or 2 (more collapses per pass; values below 2 count as 2). The floor
+    /// passes always use 2. See [`crate::RemeshParams::collapse_rank_rounds`] for the
+    /// measured trade-off (3).
     pub collapse_rank_rounds: u32,
+    /// Not in the reference: after the pass, at most this many extra passes that only
+    /// collapse edges still shorter than the hard lower limit `edge_len_lims.0 · (1 −
+    /// edge_len_tol)` (no splits; 2 rank rounds), so that a remesh leaves every edge above it
+    /// (8; 0 = off). They run only while such an edge is left. Measured in the shape test
+    /// (300 remeshes): 2.9 floor passes per remesh on average, and no remesh left an edge
+    /// below the limit; with 4 passes, 44 remeshes left up to 5 such edges.
+    pub edge_floor_passes: u32,
 }
 
 impl Default for RemeshOptions {
@@ -98,6 +105,7 @@ impl Default for RemeshOptions {
             remove_valence3: true,
             fold_relaxation_rounds: 10,
             collapse_rank_rounds: 3,
+            edge_floor_passes: 8,
         }
     }
 }
