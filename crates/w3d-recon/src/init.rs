@@ -800,7 +800,14 @@ fn taubin_smooth(mesh: &Mesh, iterations: usize) -> Result<Mesh> {
 /// Brings a fine marching-tetrahedra mesh to about `edge_length` with the remesher's
 /// collapse / split / flip passes (no optimisation steps).
 fn simplify(mesh: &Mesh, edge_length: f32) -> Result<Mesh> {
-    let options = RemeshOptions { edge_len_lims: (edge_length, edge_length), ..RemeshOptions::default() };
+    // The reference passes only (see `reconstruct_coarse` for why the repairs are off).
+    let options = RemeshOptions {
+        edge_len_lims: (edge_length, edge_length),
+        edge_floor_passes: 0,
+        fold_relaxation_rounds: 0,
+        remove_valence3: false,
+        ..RemeshOptions::default()
+    };
     let mut opt = MeshOptimizer::from_mesh(mesh, options)?;
     for _ in 0..8 {
         let lengths = vec![edge_length; opt.vertex_count()];
