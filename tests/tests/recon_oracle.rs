@@ -33,3 +33,24 @@ fn spot_oracle_pipeline_reaches_the_accuracy_target() {
     assert!(m.chamfer <= 0.008, "{m:?}");
     assert!(m.iou_64 >= 0.88, "{m:?}");
 }
+
+/// The concave acceptance objects (from `../shared/data/meshes`): the teapot and the
+/// upright teacup come out watertight, finite and free of self-intersections.
+#[test]
+fn teapot_and_teacup_come_out_without_self_intersections() {
+    for (name, max_chamfer) in [("teapot", 0.006), ("teacup", 0.015)] {
+        let path = format!("{}/../../shared/data/meshes/{name}.obj", env!("CARGO_MANIFEST_DIR"));
+        let mut truth = load_mesh(&path).unwrap().without_attributes();
+        truth.normalize_unit_cube();
+        let rig = ViewRig::wonder3d_ortho();
+        let views = wonder3d::raster::render_oracle_views(&truth, &rig, 256).unwrap();
+        let (mesh, report) = reconstruct(&views, &rig, &ReconOptions::default(), &mut |_| {}).unwrap();
+        assert!(mesh.positions().iter().flatten().all(|x| x.is_finite()), "{name}");
+        assert!(mesh.topology().is_watertight(), "{name}");
+        assert_eq!(report.untangle.after, 0, "{name}: {:?}", report.untangle);
+        assert!(mesh.self_intersections().is_empty(), "{name}");
+        let m = evaluate(&mesh, &truth, &EvalOptions::default()).unwrap();
+        eprintln!("{name}: CD {:.4}, {:?}, {:.1} s", m.chamfer, report.untangle, report.seconds);
+        assert!(m.chamfer <= max_chamfer, "{name}: {m:?}");
+    }
+}

@@ -22,6 +22,33 @@ impl Mesh {
 /// first, sorted) of `triangles` over `positions`. Fails when a triangle names a vertex
 /// that `positions` does not have.
 pub fn self_intersections(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Result<Vec<[u32; 2]>> {
+    check_indices(positions, triangles)?;
+    Ok(crossing_pairs(positions, triangles))
+}
+
+/// [`self_intersections`] restricted to the pairs that involve at least one triangle of
+/// `focus` (indices into `triangles`, any order, repeats allowed): after moving a few
+/// vertices, only the triangles that use them can have changed, and checking those against
+/// the rest is much cheaper than checking everything. Fails when a triangle names a vertex
+/// that `positions` does not have or `focus` names a triangle that does not exist.
+pub fn self_intersections_involving(
+    positions: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+    focus: &[u32],
+) -> Result<Vec<[u32; 2]>> {
+    check_indices(positions, triangles)?;
+    if let Some(&t) = focus.iter().find(|&&t| t as usize >= triangles.len()) {
+        return Err(Error::invalid("focus", format!("triangle indices below {}, got {t}", triangles.len())));
+    }
+    let mut in_focus = vec![false; triangles.len()];
+    for &t in focus {
+        in_focus[t as usize] = true;
+    }
+    Ok(crossing_pairs_involving(positions, triangles, &in_focus))
+}
+
+/// Fails when a triangle names a vertex that `positions` does not have.
+fn check_indices(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Result<()> {
     if let Some((t, tri)) =
         triangles.iter().enumerate().find(|(_, tri)| tri.iter().any(|&v| v as usize >= positions.len()))
     {
@@ -30,13 +57,20 @@ pub fn self_intersections(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Res
             format!("vertex indices below {}, got {tri:?}", positions.len()),
         ));
     }
-    Ok(crossing_pairs(positions, triangles))
+    Ok(())
 }
 
 /// The crossing pairs; every index of `tris` is below `positions.len()`.
 fn crossing_pairs(positions: &[[f32; 3]], tris: &[[u32; 3]]) -> Vec<[u32; 2]> {
+    crossing_pairs_involving(positions, tris, &vec![true; tris.len()])
+}
+
+/// The crossing pairs with at least one triangle `t` where `focus[t]`: the focus triangles
+/// are binned on a uniform grid over the bounding box, then every triangle is tested
+/// against the focus triangles sharing a cell with it.
+fn crossing_pairs_involving(positions: &[[f32; 3]], tris: &[[u32; 3]], focus: &[bool]) -> Vec<[u32; 2]> {
     let p: Vec<DVec3> = positions.iter().map(|v| DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64)).collect();
-    if tris.len() < 2 {
+    if tris.len() < 2 || !focus.contains(&true) {
         return Vec::new();
     }
     let (lo, hi) = p
@@ -49,10 +83,13 @@ fn crossing_pairs(positions: &[[f32; 3]], tris: &[[u32; 3]]) -> Vec<[u32; 2]> {
         let c = ((v - lo) / size).floor();
         [c.x as i64, c.y as i64, c.z as i64].map(|k| k.clamp(0, cells - 1))
     };
-    let mut grid: HashMap<[i64; 3], Vec<u32>> = HashMap::new();
-    for (t, tri) in tris.iter().enumerate() {
+    let cell_range = |tri: [u32; 3]| {
         let [a, b, c] = tri.map(|i| p[i as usize]);
-        let (l, h) = (cell(a.min(b).min(c)), cell(a.max(b).max(c)));
+        (cell(a.min(b).min(c)), cell(a.max(b).max(c)))
+    };
+    let mut grid: HashMap<[i64; 3], Vec<u32>> = HashMap::new();
+    for (t, &tri) in tris.iter().enumerate().filter(|&(t, _)| focus[t]) {
+        let (l, h) = cell_range(tri);
         for x in l[0]..=h[0] {
             for y in l[1]..=h[1] {
                 for z in l[2]..=h[2] {
@@ -62,17 +99,26 @@ fn crossing_pairs(positions: &[[f32; 3]], tris: &[[u32; 3]]) -> Vec<[u32; 2]> {
         }
     }
     let mut pairs: Vec<[u32; 2]> = Vec::new();
-    for members in grid.values() {
-        for (i, &s) in members.iter().enumerate() {
-            for &t in &members[i + 1..] {
-                let (a, b) = (tris[s as usize], tris[t as usize]);
-                if a.iter().any(|v| b.contains(v)) {
-                    continue;
-                }
-                let ta = a.map(|i| p[i as usize]);
-                let tb = b.map(|i| p[i as usize]);
-                if triangles_cross(ta, tb) {
-                    pairs.push([s.min(t), s.max(t)]);
+    for (s, &a) in tris.iter().enumerate() {
+        let (l, h) = cell_range(a);
+        let ta = a.map(|i| p[i as usize]);
+        for x in l[0]..=h[0] {
+            for y in l[1]..=h[1] {
+                for z in l[2]..=h[2] {
+                    let Some(members) = grid.get(&[x, y, z]) else { continue };
+                    for &t in members {
+                        // A pair of focus triangles is tested once, from its smaller index.
+                        if t as usize == s || (focus[s] && (t as usize) < s) {
+                            continue;
+                        }
+                        let b = tris[t as usize];
+                        if a.iter().any(|v| b.contains(v)) {
+                            continue;
+                        }
+                        if triangles_cross(ta, b.map(|i| p[i as usize])) {
+                            pairs.push([(s as u32).min(t), (s as u32).max(t)]);
+                        }
+                    }
                 }
             }
         }
@@ -146,5 +192,21 @@ mod tests {
         assert_eq!(self_intersections(mesh.positions(), mesh.triangles()).unwrap(), mesh.self_intersections());
         let err = self_intersections(&mesh.positions()[..7], mesh.triangles()).unwrap_err().to_string();
         assert!(err.contains("triangles[") && err.contains("below 7"), "{err}");
+    }
+
+    #[test]
+    fn focused_check_finds_exactly_the_pairs_involving_the_focus() {
+        let mesh = two([0.2, 0.2, 0.2]);
+        let (p, t) = (mesh.positions(), mesh.triangles());
+        let all = mesh.self_intersections();
+        let every: Vec<u32> = (0..8).collect();
+        assert_eq!(self_intersections_involving(p, t, &every).unwrap(), all);
+        for focus in [vec![0u32], vec![5], vec![1, 6, 6], vec![]] {
+            let expected: Vec<[u32; 2]> =
+                all.iter().copied().filter(|pair| pair.iter().any(|x| focus.contains(x))).collect();
+            assert_eq!(self_intersections_involving(p, t, &focus).unwrap(), expected, "focus {focus:?}");
+        }
+        let err = self_intersections_involving(p, t, &[8]).unwrap_err().to_string();
+        assert!(err.contains("focus") && err.contains("below 8"), "{err}");
     }
 }

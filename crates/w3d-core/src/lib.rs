@@ -38,7 +38,7 @@ pub mod viewset;
 pub use camera::{Camera, Projection, Ray};
 pub use error::{Error, Result};
 pub use image::Image;
-pub use intersect::self_intersections;
+pub use intersect::{self_intersections, self_intersections_involving};
 pub use io::{load_mesh, save_mesh};
 pub use mesh::{Mesh, Normalization, Topology};
 pub use rig::{RigView, ViewRig};

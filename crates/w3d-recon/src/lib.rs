@@ -12,7 +12,7 @@
 //!    after every step, and density bounded below by the views' pixel footprint — run a
 //!    second time from the [`visual_hull_mesh`] when the Poisson start misses a silhouette
 //!    (a handle pointing at the camera), keeping the lower final loss;
-//! 3. [`untangle`]: local smoothing until no triangles cross.
+//! 3. [`untangle`]: small local moves (separation, then smoothing) until no triangles cross.
 //!
 //! Frames and units follow `w3d-core`: the canonical y-up world frame of the rig, lengths in
 //! unit-cube units. Accuracy and speed per preset are in `docs/accuracy.md`.
@@ -47,7 +47,7 @@ pub use coarse::{CoarseOptions, CoarseReport, reconstruct_coarse, silhouette_sph
 pub use init::{InitChoice, InitOptions, InitReport, initial_mesh, visual_hull_mesh};
 pub use pipeline::{Preset, Progress, ReconOptions, ReconReport, Stage, StageTiming, reconstruct};
 
-pub use untangle::{UntangleReport, untangle};
+pub use untangle::{UntangleReport, untangle, untangle_positions};
 
 pub use integrate::{IntegrateOptions, integrate_normals, integrate_normals_anchored};
 pub use normals::{vertex_normals, vertex_normals_backward};

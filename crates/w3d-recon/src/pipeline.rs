@@ -69,7 +69,8 @@ pub struct ReconOptions {
 impl ReconOptions {
     /// The options of a named preset.
     pub fn preset(preset: Preset) -> Self {
-        let base = ReconOptions { init: InitOptions::default(), coarse: CoarseOptions::default(), untangle_rounds: 40 };
+        let base =
+            ReconOptions { init: InitOptions::default(), coarse: CoarseOptions::default(), untangle_rounds: 200 };
         match preset {
             Preset::Default => ReconOptions {
                 init: InitOptions { edge_length: 0.05, ..base.init },
