@@ -378,18 +378,17 @@ visual-hull start reaches the lower loss and is kept.
 **Self-intersections.** Continuous remeshing has no self-intersection guard (the reference
 has none either): the coarse stage leaves crossing triangle pairs — a few on convex objects,
 hundreds where two sheets are pushed together (plane wings, the rocker arm's thin rims) or
-the surface crumples into tiny folded triangles (the teapot's spout tip). `w3d_recon::untangle`
-then moves only the vertices of the crossing triangles, in rounds (200 at most): a
-*separation* round gives each crossing pair the smallest move that puts one triangle wholly on
-one side of the other's plane (so thin parts keep their thickness and outline), and when that
-stops helping, a *smoothing* round moves them half way to their neighbours' average (one more
-ring at most); after the first full check a round re-checks only the triangles it moved. The
-tables give the count found by `Mesh::self_intersections` before and after: every crossing is
-removed except on the rocker arm (orthographic, 59 of 824 left) and the horse (perspective,
-6 of 91), at no cost in accuracy against smoothing alone (which left 72 on the rocker arm,
-47 on the plane, 15 on the teapot and 12 on the front-facing teacup; rocker arm CD 0.0095
-against 0.0098). Tried and measured worse, on the orthographic rig: smoothing the crossings
-every 5 steps inside the coarse stage (koala CD 0.0039 → 0.0112, plane 0.0044 → 0.0149),
+the surface crumples into tiny folded triangles (on the teapot, edges of about 0.002 where
+the lower limit is 0.02). `w3d_recon::untangle` then moves only the vertices of the crossing
+triangles, in rounds (400 at most): a *separation* round gives each crossing pair the smallest move that puts one triangle wholly on
+one side of the other's plane, 5 % of an edge past it (so thin parts keep their thickness and
+outline), and when that stops helping, a *smoothing* round moves them half way to their
+neighbours' average (one more ring at most); after the first full check a round re-checks only
+the triangles it moved. The tables give the count found by `Mesh::self_intersections` before
+and after: every run above ends without crossings, at no cost in accuracy against smoothing
+alone (which left 72 on the rocker arm, 47 on the plane, 15 on the teapot and 12 on the
+front-facing teacup; rocker arm CD 0.0094 against 0.0098). Tried and measured worse, on the
+orthographic rig: smoothing the crossings every 5 steps inside the coarse stage (koala CD 0.0039 → 0.0112, plane 0.0044 → 0.0149),
 undoing each step's moves that make triangles cross (koala 0.0143), the same smoothing in the
 last 20 % of the steps only (plane 0.0090: the wings' loss rose from 0.028 to 0.16), a final
 remesh with the remesher's repairs on (plane 0.0194: its floor collapses fold the thin wings),

@@ -62,7 +62,7 @@ pub struct ReconOptions {
     pub init: InitOptions,
     /// The coarse optimisation.
     pub coarse: CoarseOptions,
-    /// Most smoothing rounds [`untangle`] may run on the result (0 skips it).
+    /// Most rounds (separation and smoothing) [`untangle`] may run on the result (0 skips it).
     pub untangle_rounds: usize,
 }
 
@@ -70,7 +70,7 @@ impl ReconOptions {
     /// The options of a named preset.
     pub fn preset(preset: Preset) -> Self {
         let base =
-            ReconOptions { init: InitOptions::default(), coarse: CoarseOptions::default(), untangle_rounds: 200 };
+            ReconOptions { init: InitOptions::default(), coarse: CoarseOptions::default(), untangle_rounds: 400 };
         match preset {
             Preset::Default => ReconOptions {
                 init: InitOptions { edge_length: 0.05, ..base.init },
