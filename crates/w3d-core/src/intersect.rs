@@ -62,7 +62,51 @@ fn check_indices(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Result<()> {
 
 /// The crossing pairs; every index of `tris` is below `positions.len()`.
 fn crossing_pairs(positions: &[[f32; 3]], tris: &[[u32; 3]]) -> Vec<[u32; 2]> {
-    crossing_pairs_involving(positions, tris, &vec![true; tris.len()])
+    let p: Vec<DVec3> = positions.iter().map(|v| DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64)).collect();
+    if tris.len() < 2 {
+        return Vec::new();
+    }
+    let (lo, hi) = p
+        .iter()
+        .fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(a, b), v| (a.min(*v), b.max(*v)));
+    // About one triangle per cell on a surface: cells ≈ (2·F)^(1/2) per axis.
+    let cells = ((tris.len() as f64 * 2.0).sqrt().ceil() as i64).clamp(1, 256);
+    let size = (hi - lo).max_element().max(1e-12) / cells as f64;
+    let cell = |v: DVec3| -> [i64; 3] {
+        let c = ((v - lo) / size).floor();
+        [c.x as i64, c.y as i64, c.z as i64].map(|k| k.clamp(0, cells - 1))
+    };
+    let mut grid: HashMap<[i64; 3], Vec<u32>> = HashMap::new();
+    for (t, tri) in tris.iter().enumerate() {
+        let [a, b, c] = tri.map(|i| p[i as usize]);
+        let (l, h) = (cell(a.min(b).min(c)), cell(a.max(b).max(c)));
+        for x in l[0]..=h[0] {
+            for y in l[1]..=h[1] {
+                for z in l[2]..=h[2] {
+                    grid.entry([x, y, z]).or_default().push(t as u32);
+                }
+            }
+        }
+    }
+    let mut pairs: Vec<[u32; 2]> = Vec::new();
+    for members in grid.values() {
+        for (i, &s) in members.iter().enumerate() {
+            for &t in &members[i + 1..] {
+                let (a, b) = (tris[s as usize], tris[t as usize]);
+                if a.iter().any(|v| b.contains(v)) {
+                    continue;
+                }
+                let ta = a.map(|i| p[i as usize]);
+                let tb = b.map(|i| p[i as usize]);
+                if triangles_cross(ta, tb) {
+                    pairs.push([s.min(t), s.max(t)]);
+                }
+            }
+        }
+    }
+    pairs.sort_unstable();
+    pairs.dedup();
+    pairs
 }
 
 /// The crossing pairs with at least one triangle `t` where `focus[t]`: the focus triangles
