@@ -60,22 +60,27 @@ fn check_indices(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Result<()> {
     Ok(())
 }
 
+/// The cell of a point on a uniform grid over the bounding box of `p`, with about one of
+/// `triangle_count` surface triangles per cell: (2·F)^(1/2) cells per axis, at most 256.
+fn grid_cell(p: &[DVec3], triangle_count: usize) -> impl Fn(DVec3) -> [i64; 3] {
+    let (lo, hi) = p
+        .iter()
+        .fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(a, b), v| (a.min(*v), b.max(*v)));
+    let cells = ((triangle_count as f64 * 2.0).sqrt().ceil() as i64).clamp(1, 256);
+    let size = (hi - lo).max_element().max(1e-12) / cells as f64;
+    move |v: DVec3| {
+        let c = ((v - lo) / size).floor();
+        [c.x as i64, c.y as i64, c.z as i64].map(|k| k.clamp(0, cells - 1))
+    }
+}
+
 /// The crossing pairs; every index of `tris` is below `positions.len()`.
 fn crossing_pairs(positions: &[[f32; 3]], tris: &[[u32; 3]]) -> Vec<[u32; 2]> {
     let p: Vec<DVec3> = positions.iter().map(|v| DVec3::new(v[0] as f64, v[1] as f64, v[2] as f64)).collect();
     if tris.len() < 2 {
         return Vec::new();
     }
-    let (lo, hi) = p
-        .iter()
-        .fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(a, b), v| (a.min(*v), b.max(*v)));
-    // About one triangle per cell on a surface: cells ≈ (2·F)^(1/2) per axis.
-    let cells = ((tris.len() as f64 * 2.0).sqrt().ceil() as i64).clamp(1, 256);
-    let size = (hi - lo).max_element().max(1e-12) / cells as f64;
-    let cell = |v: DVec3| -> [i64; 3] {
-        let c = ((v - lo) / size).floor();
-        [c.x as i64, c.y as i64, c.z as i64].map(|k| k.clamp(0, cells - 1))
-    };
+    let cell = grid_cell(&p, tris.len());
     let mut grid: HashMap<[i64; 3], Vec<u32>> = HashMap::new();
     for (t, tri) in tris.iter().enumerate() {
         let [a, b, c] = tri.map(|i| p[i as usize]);
@@ -117,16 +122,7 @@ fn crossing_pairs_involving(positions: &[[f32; 3]], tris: &[[u32; 3]], focus: &[
     if tris.len() < 2 || !focus.contains(&true) {
         return Vec::new();
     }
-    let (lo, hi) = p
-        .iter()
-        .fold((DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY)), |(a, b), v| (a.min(*v), b.max(*v)));
-    // About one triangle per cell on a surface: cells ≈ (2·F)^(1/2) per axis.
-    let cells = ((tris.len() as f64 * 2.0).sqrt().ceil() as i64).clamp(1, 256);
-    let size = (hi - lo).max_element().max(1e-12) / cells as f64;
-    let cell = |v: DVec3| -> [i64; 3] {
-        let c = ((v - lo) / size).floor();
-        [c.x as i64, c.y as i64, c.z as i64].map(|k| k.clamp(0, cells - 1))
-    };
+    let cell = grid_cell(&p, tris.len());
     let cell_range = |tri: [u32; 3]| {
         let [a, b, c] = tri.map(|i| p[i as usize]);
         (cell(a.min(b).min(c)), cell(a.max(b).max(c)))
