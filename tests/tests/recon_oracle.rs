@@ -22,7 +22,8 @@ fn spot_oracle_pipeline_reaches_the_accuracy_target() {
     assert_eq!(report.init.choice, InitChoice::Poisson, "{}", report.init.reason);
     let coarse_steps = events.iter().filter(|(stage, _)| *stage == Stage::Coarse).map(|e| e.1).max();
     assert_eq!(coarse_steps, Some(ReconOptions::default().coarse.steps));
-    assert_eq!(events.last(), Some(&(Stage::Untangle, 1)));
+    assert_eq!(events.last(), Some(&(Stage::Polish, 1)));
+    assert!(report.polish.loss_after <= report.polish.loss_before, "polish raised the loss: {:?}", report.polish);
     assert!(mesh.topology().is_watertight());
     assert!(mesh.self_intersections().is_empty(), "{:?}", report.untangle);
     let m = evaluate(&mesh, &spot, &EvalOptions::default()).unwrap();

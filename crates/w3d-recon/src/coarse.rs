@@ -171,59 +171,113 @@ pub fn reconstruct_coarse(
         let scale = options.min_edge_pixels / size as f32;
         opt.set_min_edge_length_field(move |p| scale * finest_view_span(&cameras, glam::Vec3::from(p)));
     }
-    // Per view: target normals, mask and the geometry-aware weight, precomputed.
-    let targets: Vec<(Vec<f32>, Vec<f32>, Vec<f32>)> = views
-        .views
-        .iter()
-        .zip(&rig.views)
-        .map(|(v, rv)| {
-            let weight = v
-                .normal
-                .data()
-                .chunks_exact(3)
-                .zip(v.mask.data())
-                .map(|(n, &m)| {
-                    let cos = (Vec3::new(n[0], n[1], n[2]).dot(-rv.camera.forward())).abs();
-                    if m >= 0.5 && cos >= options.grazing_epsilon { cos } else { 0.0 }
-                })
-                .collect();
-            (v.normal.data().to_vec(), v.mask.data().to_vec(), weight)
-        })
-        .collect();
-    let pixels = (size * size) as f32;
+    let fit = ViewFit::new(views, rig, options)?;
     let mut report = CoarseReport { losses: Vec::new(), triangle_counts: Vec::new(), seconds: 0.0 };
     let mut lr = options.lr;
     for _ in 0..options.steps {
-        let positions = opt.positions().to_vec();
-        let triangles = opt.triangles().to_vec();
-        let mesh = Mesh::new(positions.clone(), triangles.clone())?;
-        let normals = vertex_normals(&positions, &triangles)?;
+        let (loss, grad_positions) = fit.loss_and_gradient(opt.positions(), opt.triangles())?;
+        report.losses.push(loss);
+        if !loss.is_finite() {
+            return Err(Error::invalid("views", format!("finite normal and mask values (the loss became {loss})")));
+        }
+        opt.step(&grad_positions)?;
+        opt.remesh();
+        report.triangle_counts.push(opt.triangle_count());
+        lr *= options.lr_decay;
+        let mut o = *opt.options();
+        o.lr = lr;
+        opt.set_options(o)?;
+        progress(report.losses.len(), options.steps, loss);
+    }
+    report.seconds = start.elapsed().as_secs_f64();
+    Ok((opt.to_mesh()?, report))
+}
+
+/// The coarse stage's loss (normal and mask terms with `options`' weights, summed over the
+/// views) of `mesh` against `views`: how far its renders are from the views. Near 0 for
+/// the mesh the views were rendered from (about 0.0005 or less on the oracle meshes); the
+/// mesh must be manifold.
+pub fn view_loss(views: &ViewSet, rig: &ViewRig, mesh: &Mesh, options: &CoarseOptions) -> Result<f32> {
+    Ok(ViewFit::new(views, rig, options)?.loss_and_gradient(mesh.positions(), mesh.triangles())?.0)
+}
+
+/// The coarse stage's loss against one view set: per view, the target normals, mask and
+/// geometry-aware weights, precomputed once.
+pub(crate) struct ViewFit<'a> {
+    rig: &'a ViewRig,
+    size: u32,
+    normal_weight: f32,
+    mask_weight: f32,
+    /// Per view: target normals (3 per pixel), mask, normal-loss weight.
+    targets: Vec<(Vec<f32>, Vec<f32>, Vec<f32>)>,
+}
+
+impl<'a> ViewFit<'a> {
+    /// Precomputes the targets of `views` (square images, validated against `rig`).
+    pub(crate) fn new(views: &ViewSet, rig: &'a ViewRig, options: &CoarseOptions) -> Result<Self> {
+        views.validate(rig)?;
+        let size = views.width();
+        if views.height() != size {
+            return Err(Error::invalid("views", format!("square images, got {}×{}", size, views.height())));
+        }
+        let targets = views
+            .views
+            .iter()
+            .zip(&rig.views)
+            .map(|(v, rv)| {
+                let weight = v
+                    .normal
+                    .data()
+                    .chunks_exact(3)
+                    .zip(v.mask.data())
+                    .map(|(n, &m)| {
+                        let cos = (Vec3::new(n[0], n[1], n[2]).dot(-rv.camera.forward())).abs();
+                        if m >= 0.5 && cos >= options.grazing_epsilon { cos } else { 0.0 }
+                    })
+                    .collect();
+                (v.normal.data().to_vec(), v.mask.data().to_vec(), weight)
+            })
+            .collect();
+        Ok(ViewFit { rig, size, normal_weight: options.normal_weight, mask_weight: options.mask_weight, targets })
+    }
+
+    /// The total loss of the mesh `positions` / `triangles` over all views and its gradient
+    /// with respect to every vertex position (through the rendered normals and the
+    /// anti-aliased silhouette).
+    pub(crate) fn loss_and_gradient(
+        &self,
+        positions: &[[f32; 3]],
+        triangles: &[[u32; 3]],
+    ) -> Result<(f32, Vec<[f32; 3]>)> {
+        let mesh = Mesh::new(positions.to_vec(), triangles.to_vec())?;
+        let normals = vertex_normals(positions, triangles)?;
         let attributes: Vec<f32> = normals.iter().flat_map(|n| [n[0], n[1], n[2], 1.0]).collect();
-        let topology = EdgeTopology::new(&positions, &triangles)?;
-        let rasters = rasterize_rig(&mesh, rig, size)?;
+        let topology = EdgeTopology::new(positions, triangles)?;
+        let rasters = rasterize_rig(&mesh, self.rig, self.size)?;
+        let pixels = (self.size * self.size) as f32;
         let per_view: Vec<(f32, Vec<[f32; 3]>, Vec<f32>)> = rasters
             .par_iter()
-            .zip(&targets)
+            .zip(&self.targets)
             .map(|(raster, (normal, mask, weight))| {
-                let image = interpolate(&attributes, 4, &triangles, raster)?;
-                let aa = antialias(&image, 4, raster, &positions, &triangles, &topology)?;
+                let image = interpolate(&attributes, 4, triangles, raster)?;
+                let aa = antialias(&image, 4, raster, positions, triangles, &topology)?;
                 let mut loss = 0.0f32;
                 let mut grad = vec![0.0f32; aa.image.len()];
                 for p in 0..mask.len() {
                     let px = &aa.image[4 * p..4 * p + 4];
-                    let wn = options.normal_weight * weight[p] / pixels;
+                    let wn = self.normal_weight * weight[p] / pixels;
                     for k in 0..3 {
                         let d = px[k] - normal[3 * p + k];
                         loss += wn * d * d;
                         grad[4 * p + k] = 2.0 * wn * d;
                     }
                     let d = px[3] - mask[p];
-                    loss += options.mask_weight * d * d / pixels;
-                    grad[4 * p + 3] = 2.0 * options.mask_weight * d / pixels;
+                    loss += self.mask_weight * d * d / pixels;
+                    grad[4 * p + 3] = 2.0 * self.mask_weight * d / pixels;
                 }
-                let ga = antialias_backward(&aa, &image, 4, raster, &positions, &triangles, &grad)?;
-                let gi = interpolate_backward(&attributes, 4, &triangles, raster, &ga.colour)?;
-                let mut gp = rasterize_backward(raster, &positions, &triangles, &gi.uv, None)?;
+                let ga = antialias_backward(&aa, &image, 4, raster, positions, triangles, &grad)?;
+                let gi = interpolate_backward(&attributes, 4, triangles, raster, &ga.colour)?;
+                let mut gp = rasterize_backward(raster, positions, triangles, &gi.uv, None)?;
                 for (a, b) in gp.iter_mut().zip(&ga.positions) {
                     *a = [a[0] + b[0], a[1] + b[1], a[2] + b[2]];
                 }
@@ -242,23 +296,10 @@ pub fn reconstruct_coarse(
                 }
             }
         }
-        let through_normals = vertex_normals_backward(&positions, &triangles, &grad_normals)?;
+        let through_normals = vertex_normals_backward(positions, triangles, &grad_normals)?;
         for (g, n) in grad_positions.iter_mut().zip(through_normals) {
             *g = [g[0] + n[0], g[1] + n[1], g[2] + n[2]];
         }
-        report.losses.push(loss);
-        if !loss.is_finite() {
-            return Err(Error::invalid("views", format!("finite normal and mask values (the loss became {loss})")));
-        }
-        opt.step(&grad_positions)?;
-        opt.remesh();
-        report.triangle_counts.push(opt.triangle_count());
-        lr *= options.lr_decay;
-        let mut o = *opt.options();
-        o.lr = lr;
-        opt.set_options(o)?;
-        progress(report.losses.len(), options.steps, loss);
+        Ok((loss, grad_positions))
     }
-    report.seconds = start.elapsed().as_secs_f64();
-    Ok((opt.to_mesh()?, report))
 }

@@ -12,7 +12,9 @@
 //!    after every step, and density bounded below by the views' pixel footprint — run a
 //!    second time from the [`visual_hull_mesh`] when the Poisson start misses a silhouette
 //!    (a handle pointing at the camera), keeping the lower final loss;
-//! 3. [`untangle`]: small local moves (separation, then smoothing) until no triangles cross.
+//! 3. [`untangle`]: small local moves (separation, then smoothing) until no triangles cross;
+//! 4. [`polish`]: the coarse loss again on the vertices untangling moved, at fixed
+//!    topology, with every move that would make triangles cross undone.
 //!
 //! Frames and units follow `w3d-core`: the canonical y-up world frame of the rig, lengths in
 //! unit-cube units. Accuracy and speed per preset are in `docs/accuracy.md`.
@@ -41,12 +43,14 @@ mod init;
 mod integrate;
 mod normals;
 mod pipeline;
+mod polish;
 mod untangle;
 
-pub use coarse::{CoarseOptions, CoarseReport, reconstruct_coarse, silhouette_sphere};
+pub use coarse::{CoarseOptions, CoarseReport, reconstruct_coarse, silhouette_sphere, view_loss};
 pub use init::{InitChoice, InitOptions, InitReport, initial_mesh, visual_hull_mesh};
 pub use pipeline::{Preset, Progress, ReconOptions, ReconReport, Stage, StageTiming, reconstruct};
 
+pub use polish::{PolishReport, polish};
 pub use untangle::{UntangleReport, untangle, untangle_positions};
 
 pub use integrate::{IntegrateOptions, integrate_normals, integrate_normals_anchored};

@@ -24,6 +24,7 @@ pub fn recon_progress(bar: &ProgressBar) -> impl FnMut(Progress) + '_ {
             Stage::Init => "init",
             Stage::Coarse => "coarse",
             Stage::Untangle => "untangle",
+            Stage::Polish => "polish",
         });
         bar.set_length(p.total as u64);
         bar.set_position(p.done as u64);
