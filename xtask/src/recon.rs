@@ -360,7 +360,10 @@ cannot see), so the Poisson start is a small slab whose silhouette IoU in the ri
 0.15; `reconstruct` therefore also optimises from the visual hull and keeps that result (lower
 final loss): a plate with the hull's outline, CD 0.032 instead of 0.072 for the optimised
 Poisson start (two rails along the sides of the hull). Neither is the T. Left to right: ground
-truth and reconstruction from 30° elevation (view 0), then view 3.
+truth and reconstruction from 30° elevation (view 0), then view 3. A prior that prefers the
+smaller of equally good shapes (a volume penalty in the coarse loss, weight 0.3) carves little
+of the T (CD 0.0282) and eats what the views do show elsewhere (spot 0.0031 → 0.0188, torus
+0.0092 → 0.0492), so it was dropped.
 
 ![hammer from 30° elevation: truth, reconstruction, truth, reconstruction](img/hammer_flat.png)
 
@@ -397,10 +400,13 @@ much to do: it thinned the plane's wings and the rocker arm's rims (CD 0.0030 �
 0.156, 0.023 → 0.170). `w3d_recon::polish` therefore fits the vertices it moved (and two rings
 around them) to the views again for 40 steps, undoing any move that would make triangles
 cross: plane CD 0.0039, rocker arm 0.0075, view losses 0.091 and 0.062, under a second each.
-The last column gives the final view loss and, in brackets, the loss of the original mesh
-against its own views: the floor. Every object stays well above it, the hammer included
-(0.0154 against 0.0000), so the views still hold information the optimisation does not
-use. Tried and measured worse, on the
+The last column gives the final view loss (the coarse stage's loss, all six views) and, in
+brackets, the loss of the original mesh against its own views. No result reaches that floor:
+edges of at least 2 pixels and smooth vertex normals leave about 0.01–0.03 on smooth objects,
+about half of it along the silhouettes. The hammer's 0.0154 is as low as spot's 0.0163 (per
+view, silhouette terms 0.0002–0.0027 against spot's 0.0007–0.0019): its plate matches the
+views as well as spot's result does, at ten times the Chamfer distance, which is the
+ambiguity described above and not an optimisation left unfinished. Tried and measured worse, on the
 orthographic rig: smoothing the crossings every 5 steps inside the coarse stage (koala CD 0.0039 → 0.0112, plane 0.0044 → 0.0149),
 undoing each step's moves that make triangles cross (koala 0.0143), the same smoothing in the
 last 20 % of the steps only (plane 0.0090: the wings' loss rose from 0.028 to 0.16), a final
