@@ -89,7 +89,10 @@ pub fn polish(
     let fit = ViewFit::new(views, rig, options)?;
     let triangles = mesh.triangles().to_vec();
     let mut positions = mesh.positions().to_vec();
-    let (loss_before, _) = fit.loss_and_gradient(&positions, &triangles)?;
+    // The loss and gradient at the current positions: computed once per render, used by the
+    // next step and, after the last one, as the final loss.
+    let mut current = fit.loss_and_gradient(&positions, &triangles)?;
+    let loss_before = current.0;
     let mut report = PolishReport { steps: 0, loss_before, loss_after: loss_before, reverted: 0, seconds: 0.0 };
     if steps == 0 || !free.contains(&true) || !self_intersections(&positions, &triangles)?.is_empty() {
         report.seconds = start.elapsed().as_secs_f64();
@@ -125,11 +128,10 @@ pub fn polish(
     moving.sort_unstable();
     moving.dedup();
     for step in 1..=steps {
-        let (loss, grad) = fit.loss_and_gradient(&positions, &triangles)?;
+        let (loss, grad) = current;
         if !loss.is_finite() {
             return Err(Error::invalid("views", format!("finite normal and mask values (the loss became {loss})")));
         }
-        report.loss_after = loss;
         let before = positions.clone();
         let (c1, c2) = (1.0 - BETAS.0.powi(step as i32), 1.0 - BETAS.1.powi(step as i32));
         for &v in &movable {
@@ -169,8 +171,9 @@ pub fn polish(
             focus.dedup();
         }
         report.steps = step;
+        current = fit.loss_and_gradient(&positions, &triangles)?;
     }
-    report.loss_after = fit.loss_and_gradient(&positions, &triangles)?.0;
+    report.loss_after = current.0;
     report.seconds = start.elapsed().as_secs_f64();
     Ok((Mesh::new(positions, triangles)?, report))
 }
