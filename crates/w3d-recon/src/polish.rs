@@ -33,6 +33,7 @@ use serde::Serialize;
 use w3d_core::{Error, Mesh, Result, ViewRig, ViewSet, self_intersections, self_intersections_involving};
 
 use crate::coarse::{CoarseOptions, ViewFit};
+use crate::untangle::vertex_adjacency;
 
 /// What [`polish`] did.
 #[derive(Debug, Clone, PartialEq, Serialize)]
@@ -99,26 +100,18 @@ pub fn polish(
         return Ok((mesh.clone(), report));
     }
     let n = positions.len();
-    let mut faces_of: Vec<Vec<u32>> = vec![Vec::new(); n];
-    let mut neighbours: Vec<Vec<u32>> = vec![Vec::new(); n];
+    let (neighbours, faces_of) = vertex_adjacency(&triangles, n);
     let mut edge_sum = vec![0.0f32; n];
     let mut edge_count = vec![0.0f32; n];
-    for (f, t) in triangles.iter().enumerate() {
+    for t in &triangles {
         for k in 0..3 {
             let (a, b) = (t[k] as usize, t[(k + 1) % 3] as usize);
-            faces_of[a].push(f as u32);
-            neighbours[a].push(b as u32);
-            neighbours[b].push(a as u32);
             let l = Vec3::from(positions[a]).distance(Vec3::from(positions[b]));
             edge_sum[a] += l;
             edge_sum[b] += l;
             edge_count[a] += 1.0;
             edge_count[b] += 1.0;
         }
-    }
-    for list in &mut neighbours {
-        list.sort_unstable();
-        list.dedup();
     }
     let scale: Vec<f32> = edge_sum.iter().zip(&edge_count).map(|(s, c)| s / c.max(1.0)).collect();
     let lr = options.lr * options.lr_decay.powi(options.steps as i32);

@@ -82,20 +82,7 @@ pub fn untangle_positions(
         return Ok(UntangleReport { before, after: before, rounds: 0 });
     }
     let n = positions.len();
-    let mut neighbours: Vec<Vec<u32>> = vec![Vec::new(); n];
-    let mut faces_of: Vec<Vec<u32>> = vec![Vec::new(); n];
-    for (f, t) in triangles.iter().enumerate() {
-        for k in 0..3 {
-            let (a, b) = (t[k], t[(k + 1) % 3]);
-            neighbours[a as usize].push(b);
-            neighbours[b as usize].push(a);
-            faces_of[a as usize].push(f as u32);
-        }
-    }
-    for list in &mut neighbours {
-        list.sort_unstable();
-        list.dedup();
-    }
+    let (neighbours, faces_of) = vertex_adjacency(triangles, n);
     let (mut rounds, mut rings, mut separate) = (0, 0, true);
     while !pairs.is_empty() && rounds < max_rounds {
         let separating = separate && 2 * rounds < max_rounds;
@@ -131,6 +118,26 @@ pub fn untangle_positions(
         pairs = left;
     }
     Ok(UntangleReport { before, after: pairs.len(), rounds })
+}
+
+/// Per vertex of `triangles` (indices below `n`): its neighbours (sorted, no repeats) and
+/// the triangles that use it.
+pub(crate) fn vertex_adjacency(triangles: &[[u32; 3]], n: usize) -> (Vec<Vec<u32>>, Vec<Vec<u32>>) {
+    let mut neighbours: Vec<Vec<u32>> = vec![Vec::new(); n];
+    let mut faces_of: Vec<Vec<u32>> = vec![Vec::new(); n];
+    for (f, t) in triangles.iter().enumerate() {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            neighbours[a as usize].push(b);
+            neighbours[b as usize].push(a);
+            faces_of[a as usize].push(f as u32);
+        }
+    }
+    for list in &mut neighbours {
+        list.sort_unstable();
+        list.dedup();
+    }
+    (neighbours, faces_of)
 }
 
 /// Per moved vertex, its new position: the mean of the smallest moves that separate its
