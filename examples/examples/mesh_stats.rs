@@ -5,9 +5,9 @@
 //! cargo run --release -p wonder3d-examples --example mesh_stats -- assets/spot.obj
 //! ```
 
-use w3d_core::{ViewRig, load_mesh};
+use wonder3d::{ViewRig, load_mesh};
 
-fn main() -> Result<(), w3d_core::Error> {
+fn main() -> Result<(), wonder3d::Error> {
     let path = std::env::args_os()
         .nth(1)
         .map(std::path::PathBuf::from)

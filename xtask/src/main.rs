@@ -10,6 +10,11 @@
 //!   the reconstruction accuracy harness (oracle views of `../shared/data/meshes`), writing
 //!   `target/bench/recon.json` and, on a full run, `docs/accuracy.md`.
 //! - `cargo xtask chart`: `docs/speed_accuracy.svg` from `target/bench/recon.json`.
+//! - `cargo xtask build-parity`: fails if a dependency of the README's demo build would be
+//!   compiled again, with other features, by the test command.
+//! - `cargo xtask package [--verify]`: `cargo package` of every publishable crate in
+//!   dependency order (what `cargo publish` would upload); `--verify` also builds each from
+//!   its archive (CI runs it without, the full check is run by hand before a release).
 //! - `cargo xtask fixtures eval`: regenerates the peer-parity fixtures of `w3d-eval`
 //!   (Python: a venv in `target/tools/evalvenv` with trimesh, point-cloud-utils, mesh2sdf,
 //!   scikit-image from PyPI). The outputs are committed; tests never need Python.
@@ -64,6 +69,17 @@ enum Task {
     },
     /// Draw the SVG charts in docs/ (speed against accuracy) from target/bench/*.json.
     Chart,
+    /// Check that every dependency the README's demo command compiles is compiled with the
+    /// same features by the test command (so the tests reuse it instead of rebuilding it).
+    BuildParity,
+    /// Package every publishable crate in dependency order (`cargo package --workspace`),
+    /// as `cargo publish` would; `--verify` also builds each packaged crate from its archive.
+    Package {
+        /// Build every packaged crate from its `.crate` archive (a cold build of all
+        /// dependencies, Burn included, in `target/package`: about 15 minutes on 2 cores).
+        #[arg(long)]
+        verify: bool,
+    },
     /// Validate GLB / glTF files with the Khronos glTF validator (installed on demand).
     ValidateGlb {
         /// Files to validate.
@@ -197,9 +213,9 @@ fn bench(suite: &str, criterion_args: &[String]) -> Result<(), String> {
         return recon::run(criterion_args);
     }
     let start = std::time::SystemTime::now();
-    let krate = format!("w3d-{suite}");
     let mut cmd = Command::new("cargo");
-    cmd.current_dir(workspace_root()).args(["bench", "-p", &krate, "--bench", suite, "--"]).args(criterion_args);
+    // `--workspace` resolves features as the test command does, so the bench reuses its builds.
+    cmd.current_dir(workspace_root()).args(["bench", "--workspace", "--bench", suite, "--"]).args(criterion_args);
     run(&mut cmd)?;
     let mut found = Vec::new();
     fresh_estimates(&target_dir().join("criterion"), start, &mut found);
@@ -236,6 +252,98 @@ fn bench(suite: &str, criterion_args: &[String]) -> Result<(), String> {
         }
     }
     println!("\nwrote {}", out.display());
+    Ok(())
+}
+
+/// `(package, features)` pairs that `cargo tree ARGS` resolves, one per built unit: a
+/// dependency built for the host and for the target with different features appears twice.
+fn resolved_units(args: &[&str]) -> Result<std::collections::BTreeSet<(String, String)>, String> {
+    let out = Command::new("cargo")
+        .current_dir(workspace_root())
+        .arg("tree")
+        .args(args)
+        .args(["-f", "{p}|{f}", "--prefix", "none"])
+        .output()
+        .map_err(|e| format!("cannot run cargo tree: {e}"))?;
+    if !out.status.success() {
+        return Err(format!("cargo tree {args:?} failed: {}", String::from_utf8_lossy(&out.stderr)));
+    }
+    Ok(String::from_utf8_lossy(&out.stdout)
+        .lines()
+        .filter_map(|l| l.split_once('|'))
+        // Workspace crates print their path (`name v0.1.0 (/path)`): they are rebuilt by
+        // design when the facade gains the diffusion feature.
+        .filter(|(p, _)| !p.contains('('))
+        .map(|(p, f)| (p.trim().to_string(), f.trim_end_matches(" (*)").trim().to_string()))
+        .collect())
+}
+
+/// The demo build (`wonder3d-cli --no-default-features`) must be a subset of the test build
+/// (`--workspace` with dev-dependencies), unit by unit: otherwise the test command compiles
+/// that dependency again and everything that depends on it. The CLI's manifest lists the
+/// features Burn adds to shared dependencies ("build parity"); this finds a missing one.
+fn build_parity() -> Result<(), String> {
+    let tests = resolved_units(&["--workspace", "-e", "normal,build,dev"])?;
+    let mut missing = 0;
+    for (what, args) in [
+        ("the README's demo command", &["-p", "wonder3d-cli", "--no-default-features", "-e", "normal,build"][..]),
+        ("`cargo xtask`", &["-p", "xtask", "-e", "normal,build"][..]),
+    ] {
+        let units = resolved_units(args)?;
+        let before = missing;
+        for (package, features) in units.difference(&tests) {
+            let test_features: Vec<&str> =
+                tests.iter().filter(|(p, _)| p == package).map(|(_, f)| f.as_str()).collect();
+            eprintln!("{what}: {package} with [{features}], the tests with {test_features:?}");
+            missing += 1;
+        }
+        if missing == before {
+            println!("build parity: {what} builds {} dependency units, all reused by the test command", units.len());
+        }
+    }
+    if missing == 0 {
+        Ok(())
+    } else {
+        Err(format!(
+            "{missing} dependency builds differ from the test build: add the features above to the \
+             build-parity list in crates/wonder3d-cli/Cargo.toml or xtask/Cargo.toml"
+        ))
+    }
+}
+
+/// The workspace members that are not published (their manifests say `publish = false`).
+const UNPUBLISHED: &[&str] = &["wonder3d-examples", "wonder3d-tests", "xtask"];
+
+/// `cargo package` for every publishable crate, in dependency order: cargo resolves the
+/// crates' dependencies on each other through a local registry of the archives it just
+/// made, so this checks what `cargo publish` would upload (manifests, readmes, included
+/// files, versioned path dependencies) before anything is on crates.io.
+fn package(verify: bool) -> Result<(), String> {
+    let mut cmd = Command::new("cargo");
+    cmd.current_dir(workspace_root()).args(["package", "--workspace", "--allow-dirty", "--quiet"]);
+    for name in UNPUBLISHED {
+        cmd.args(["--exclude", name]);
+    }
+    if !verify {
+        cmd.arg("--no-verify");
+    }
+    run(&mut cmd)?;
+    let dir = target_dir().join("package");
+    let mut crates: Vec<String> = std::fs::read_dir(&dir)
+        .map_err(|e| format!("{}: {e}", dir.display()))?
+        .filter_map(|e| e.ok())
+        .filter_map(|e| e.file_name().into_string().ok())
+        .filter(|n| n.ends_with(".crate"))
+        .collect();
+    crates.sort();
+    for name in &crates {
+        let size = std::fs::metadata(dir.join(name)).map(|m| m.len()).unwrap_or(0);
+        println!("{name}: {:.1} KiB", size as f64 / 1024.0);
+        if size > 10 * 1024 * 1024 {
+            return Err(format!("{name} is over crates.io's 10 MiB limit"));
+        }
+    }
+    println!("packaged {} crates{}", crates.len(), if verify { " and built each from its archive" } else { "" });
     Ok(())
 }
 
@@ -394,6 +502,8 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Task::Deny => deny(),
         Task::Chart => chart::run(),
+        Task::Package { verify } => package(verify),
+        Task::BuildParity => build_parity(),
         Task::ValidateGlb { files } => validate_glb(&files),
         Task::LoadGlb { files, vertices, triangles } => load_glb(&files, vertices, triangles),
         Task::Fixtures { which } => fixtures(&which),

@@ -13,7 +13,7 @@ fn help_lists_the_commands_ci_uses() {
     let out = xtask(&["--help"]);
     assert!(out.status.success());
     let help = String::from_utf8_lossy(&out.stdout);
-    for command in ["deny", "validate-glb", "load-glb", "bench", "chart", "fixtures"] {
+    for command in ["deny", "validate-glb", "load-glb", "bench", "chart", "fixtures", "package", "build-parity"] {
         assert!(help.contains(command), "`{command}` missing from:\n{help}");
     }
 }

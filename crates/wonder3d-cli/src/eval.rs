@@ -5,8 +5,8 @@
 use std::path::PathBuf;
 
 use serde_json::{Value, json};
-use w3d_core::{Mesh, Result, load_mesh};
-use w3d_eval::{
+use wonder3d::{Mesh, Result, load_mesh};
+use wonder3d::eval::{
     EvalOptions, IcpOptions, MeshMetrics, Similarity, VisibleOptions, align_icp_scale, evaluate,
     visible_surface_chamfer,
 };

@@ -1,106 +1,146 @@
 //! `wonder3d generate IMAGE --weights DIR --out VIEWS_DIR [--camera ortho|persp] [--steps N]
 //! [--guidance G] [--eta E] [--seed S]`: the 6 normal + 6 colour views of an RGBA image from the
-//! Wonder3D++ multi-view diffusion model, written as a view-set folder.
+//! Wonder3D++ multi-view diffusion model, written as a view-set folder with a contact sheet.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
-use w3d_core::{Image, Result, ViewRig, ViewSet};
-use w3d_diffusion::{CameraType, MultiViewPipeline, SampleOptions, prepare_input};
+use wonder3d::{Error, Result};
 
-use crate::progress::stage_bar;
+use crate::args::CameraArg;
 
-/// The model and sampling options shared by `generate` and `run`.
+/// The model and sampling options shared by `generate` and `run` (defaults: the Wonder3D++
+/// sampling settings — 50 DDIM steps, guidance 2, eta 1, seed 42).
 #[derive(clap::Args)]
+#[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
 pub struct ModelArgs {
-    /// Model directory (unet/, vae/, image_encoder/, scheduler/), as published on Hugging Face
-    /// (see docs/weights.md).
+    /// Model directory (unet/, vae/, image_encoder/, scheduler/), as published (docs/weights.md).
     #[arg(long)]
-    weights: PathBuf,
-    /// Camera type of the generated views: ortho or persp.
-    #[arg(long, default_value = "ortho")]
-    camera: String,
+    pub weights: PathBuf,
+    /// Camera type of the generated views.
+    #[arg(long, value_enum, default_value_t = CameraArg::Ortho)]
+    pub camera: CameraArg,
     /// DDIM steps.
-    #[arg(long, default_value_t = SampleOptions::default().steps)]
-    steps: usize,
+    #[arg(long, default_value_t = 50)]
+    pub steps: usize,
     /// Classifier-free guidance scale (1 = no unconditional branch).
-    #[arg(long, default_value_t = SampleOptions::default().guidance)]
-    guidance: f64,
+    #[arg(long, default_value_t = 2.0)]
+    pub guidance: f64,
     /// DDIM eta: 0 deterministic, 1 the reference's stochastic sampling.
-    #[arg(long, default_value_t = SampleOptions::default().eta)]
-    eta: f64,
+    #[arg(long, default_value_t = 1.0)]
+    pub eta: f64,
     /// Seed of all sampling noise (the same seed gives the same views).
-    #[arg(long, default_value_t = SampleOptions::default().seed)]
-    seed: u64,
+    #[arg(long, default_value_t = 42)]
+    pub seed: u64,
 }
 
 /// Arguments of `wonder3d generate`.
 #[derive(clap::Args)]
+#[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
 pub struct GenerateArgs {
     /// Input image: a PNG with an alpha channel masking the object (background removed).
-    image: PathBuf,
+    pub image: PathBuf,
     #[command(flatten)]
-    model: ModelArgs,
-    /// Output view-set folder (created if needed), the layout `wonder3d render` writes.
+    pub model: ModelArgs,
+    /// Output view-set folder (created if needed), the layout `wonder3d render` writes, plus
+    /// `input.png` (what the model saw) and `views.png` (a labelled contact sheet).
     #[arg(long)]
-    out: PathBuf,
+    pub out: PathBuf,
     /// No progress bar.
     #[arg(long)]
-    quiet: bool,
+    pub quiet: bool,
 }
 
-/// The generated views (as a view set with its rig) and the preprocessed input image.
-pub struct Generated {
-    /// The 6 views: unit normals in the rig frame, colours, masks.
-    pub views: ViewSet,
-    /// The rig of the chosen camera type.
-    pub rig: ViewRig,
-    /// The conditioning image the model saw (white background, the model's resolution).
-    pub input: Image,
+/// Fails unless `dir` can become an output folder (not an existing file; its parent exists).
+pub fn check_out_dir(dir: &Path) -> Result<()> {
+    if dir.is_file() {
+        return Err(Error::invalid(format!("output {}", dir.display()), "a folder, but it is a file"));
+    }
+    match dir.parent() {
+        Some(p) if !p.as_os_str().is_empty() && !p.is_dir() => Err(Error::invalid(
+            format!("output {}", dir.display()),
+            format!("a folder inside an existing one; create {} first", p.display()),
+        )),
+        _ => Ok(()),
+    }
 }
 
-/// Loads the model and generates the views of `image`, with a per-step progress bar.
-pub fn generate_views(image: &PathBuf, model: &ModelArgs, quiet: bool) -> Result<Generated> {
-    let camera: CameraType = model.camera.parse()?;
-    let rgba = Image::read_png(image)?;
-    let bar = stage_bar(quiet, "load")?;
-    bar.set_message(format!("weights from {}", model.weights.display()));
-    bar.enable_steady_tick(std::time::Duration::from_millis(200));
-    let device = w3d_diffusion::default_device();
-    let pipeline = MultiViewPipeline::from_dir(&model.weights, &device)?;
-    let input = prepare_input(&rgba, pipeline.image_size() as u32)?;
-    bar.set_prefix("condition");
-    let cond = pipeline.condition(&input, &device)?;
-    let options =
-        SampleOptions { steps: model.steps, guidance: model.guidance, eta: model.eta, camera, seed: model.seed };
-    bar.set_prefix("denoise");
-    bar.set_message(format!("6 views x 2 domains, guidance {}", model.guidance));
-    bar.disable_steady_tick();
-    let noise = pipeline.initial_noise(options.seed, &device);
-    let latents = pipeline.sample_from(noise, &cond, &options, &mut |done, total| {
-        bar.set_length(total as u64);
-        bar.set_position(done as u64);
-    })?;
-    bar.set_prefix("decode");
-    bar.enable_steady_tick(std::time::Duration::from_millis(200));
-    let generated = pipeline.decode(latents, camera)?;
-    bar.finish_and_clear();
-    let (views, rig) = generated.to_view_set()?;
-    Ok(Generated { views, rig, input })
+#[cfg(feature = "diffusion")]
+mod with_model {
+    use super::*;
+    use crate::progress;
+    use wonder3d::sheet::{SheetRow, contact_sheet, normal_picture};
+    use wonder3d::{CameraType, Generated, Generator, Image, SampleOptions};
+
+    /// Loads the model of `args` with its sampling options.
+    pub fn load(args: &ModelArgs) -> Result<Generator> {
+        let camera = match args.camera {
+            CameraArg::Ortho => CameraType::Orthographic,
+            CameraArg::Persp => CameraType::Perspective,
+        };
+        let mut options = SampleOptions::default();
+        options.steps = args.steps;
+        options.guidance = args.guidance;
+        options.eta = args.eta;
+        options.camera = camera;
+        options.seed = args.seed;
+        Ok(Generator::load(&args.weights)?.with_options(options))
+    }
+
+    /// Writes the view set, `input.png` and the labelled `views.png` into `dir`.
+    pub fn save_generated(generated: &Generated, dir: &Path) -> Result<()> {
+        generated.views.save(dir)?;
+        generated.input.write_png(dir.join("input.png"))?;
+        let mut colours = SheetRow { label: "colour".into(), images: Vec::new() };
+        let mut normals = SheetRow { label: "normal".into(), images: Vec::new() };
+        for v in generated.views.views() {
+            if let Some(c) = &v.colour {
+                colours.images.push(c.with_alpha(&v.mask)?);
+            }
+            normals.images.push(normal_picture(&v.normal, &v.mask)?);
+        }
+        let names: Vec<&str> = generated.views.rig().views.iter().map(|v| v.name.as_str()).collect();
+        contact_sheet(&names, &[colours, normals])?.write_png(dir.join("views.png"))
+    }
+
+    /// Runs `wonder3d generate`.
+    pub fn run(args: &GenerateArgs) -> Result<()> {
+        check_out_dir(&args.out)?;
+        let rgba = Image::read_png(&args.image)?;
+        let bar = progress::bar(args.quiet)?;
+        bar.set_prefix("load");
+        bar.set_message(format!("weights from {}", args.model.weights.display()));
+        let generator = load(&args.model)?;
+        let generated = generator.generate(&rgba, &mut progress::follow(&bar))?;
+        bar.finish_and_clear();
+        save_generated(&generated, &args.out)?;
+        println!(
+            "generated {} views ({}×{}, {}) of {} -> {}",
+            generated.views.len(),
+            generated.views.width(),
+            generated.views.height(),
+            generated.views.rig().name,
+            args.image.display(),
+            args.out.display()
+        );
+        Ok(())
+    }
 }
 
-/// Runs `wonder3d generate`: the view set plus `input.png` (the conditioning image).
-pub fn run(args: &GenerateArgs) -> Result<()> {
-    let generated = generate_views(&args.image, &args.model, args.quiet)?;
-    generated.views.save(&args.out, &generated.rig)?;
-    generated.input.write_png(args.out.join("input.png"))?;
-    println!(
-        "generated {} views ({}×{}, {}) of {} -> {}",
-        generated.rig.len(),
-        generated.views.width(),
-        generated.views.height(),
-        generated.rig.name,
-        args.image.display(),
-        args.out.display()
-    );
-    Ok(())
+#[cfg(feature = "diffusion")]
+pub use with_model::{load, run, save_generated};
+
+/// The error of `generate` and `run` in a binary built without the model.
+#[cfg(not(feature = "diffusion"))]
+pub fn without_model() -> Error {
+    Error::invalid(
+        "wonder3d generate / run",
+        "a binary built with the diffusion model: this one was built with --no-default-features; \
+         rebuild with `cargo install wonder3d-cli` or `cargo run --release -p wonder3d-cli -- …`",
+    )
+}
+
+/// Runs `wonder3d generate` (this binary has no model).
+#[cfg(not(feature = "diffusion"))]
+pub fn run(_: &GenerateArgs) -> Result<()> {
+    Err(without_model())
 }

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use serde::Serialize;
-use w3d_core::{Result, load_mesh};
+use wonder3d::{Result, load_mesh};
 
 /// Arguments of `wonder3d info`.
 #[derive(clap::Args)]

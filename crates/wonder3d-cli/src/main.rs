@@ -12,6 +12,7 @@
 //! wonder3d run cup.png --weights ckpts --out cup.glb          # generate -> reconstruct -> texture
 //! ```
 
+mod args;
 mod demo;
 mod eval;
 mod generate;

@@ -2,10 +2,11 @@
 
 use std::path::PathBuf;
 
-use w3d_core::{Error, Result, ViewSet, io::write_atomic, save_mesh};
-use w3d_recon::{Preset, ReconOptions, reconstruct};
+use wonder3d::core::io::write_atomic;
+use wonder3d::{Error, Pipeline, Result, ViewSet, check_mesh_output, check_parent};
 
-use crate::progress::{recon_progress, stage_bar};
+use crate::args::PresetArg;
+use crate::progress;
 
 /// Arguments of `wonder3d reconstruct`.
 #[derive(clap::Args)]
@@ -16,9 +17,9 @@ pub struct ReconstructArgs {
     /// Output mesh (.glb, .obj or .ply), in the rig's world frame.
     #[arg(long)]
     out: PathBuf,
-    /// Speed/accuracy preset: fast, default or quality.
-    #[arg(long, default_value = "default")]
-    preset: String,
+    /// Speed/accuracy preset.
+    #[arg(long, value_enum, default_value_t = PresetArg::Default)]
+    preset: PresetArg,
     /// Also write the reconstruction report (stage timings, losses, face counts, init choice) as JSON.
     #[arg(long)]
     report: Option<PathBuf>,
@@ -27,23 +28,27 @@ pub struct ReconstructArgs {
     quiet: bool,
 }
 
-/// Runs `wonder3d reconstruct`.
+/// Runs `wonder3d reconstruct`: the closed mesh, untextured.
 pub fn run(args: &ReconstructArgs) -> Result<()> {
-    let preset: Preset = args.preset.parse()?;
-    let (views, rig) = ViewSet::load(&args.views)?;
-    let bar = stage_bar(args.quiet, "reconstruct")?;
-    let (mesh, report) = reconstruct(&views, &rig, &ReconOptions::preset(preset), &mut recon_progress(&bar))?;
-    bar.finish_and_clear();
-    save_mesh(&args.out, &mesh)?;
+    check_mesh_output(&args.out)?;
     if let Some(path) = &args.report {
-        let json = serde_json::to_vec_pretty(&report).map_err(|e| Error::invalid("report", e.to_string()))?;
+        check_parent(path)?;
+    }
+    let views = ViewSet::load(&args.views)?;
+    let bar = progress::bar(args.quiet)?;
+    let output = Pipeline::new().with_preset(args.preset.into()).without_texture().from_views(&views, &mut progress::follow(&bar))?;
+    bar.finish_and_clear();
+    output.save(&args.out)?;
+    if let Some(path) = &args.report {
+        let json = serde_json::to_vec_pretty(&output.report.reconstruction).map_err(|e| Error::invalid("report", e.to_string()))?;
         write_atomic(path, |w| std::io::Write::write_all(w, &json).map_err(|e| Error::io(path, e)))?;
     }
+    let r = &output.report;
     println!(
         "reconstructed {} triangles in {:.1} s (init: {}) -> {}",
-        mesh.triangle_count(),
-        report.seconds,
-        report.init.reason,
+        r.triangles,
+        r.seconds.reconstruct,
+        r.reconstruction.init.reason,
         args.out.display()
     );
     Ok(())

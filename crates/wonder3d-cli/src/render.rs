@@ -2,16 +2,18 @@
 
 use std::path::PathBuf;
 
-use w3d_core::{Result, ViewRig, load_mesh};
+use wonder3d::{Result, load_mesh};
+
+use crate::args::RigArg;
 
 /// Arguments of `wonder3d render`.
 #[derive(clap::Args)]
 pub struct RenderArgs {
     /// Mesh file (.obj, .ply, .glb, .gltf).
     mesh: PathBuf,
-    /// Camera rig: wonder3d-ortho, wonder3d-persp or syncdreamer16.
-    #[arg(long, default_value = "wonder3d-ortho")]
-    rig: String,
+    /// Camera rig.
+    #[arg(long, value_enum, default_value_t = RigArg::Wonder3dOrtho)]
+    rig: RigArg,
     /// Image width and height in pixels.
     #[arg(long, default_value_t = 256)]
     size: u32,
@@ -26,13 +28,13 @@ pub struct RenderArgs {
 /// Runs `wonder3d render`: normal, colour and mask PNGs, normal and depth EXRs and
 /// `cameras.json` in the view-set folder layout.
 pub fn run(args: &RenderArgs) -> Result<()> {
-    let rig = ViewRig::by_name(&args.rig)?;
+    let rig = args.rig.rig();
     let mut mesh = load_mesh(&args.mesh)?;
     if !args.no_normalize {
         mesh.normalize_unit_cube();
     }
-    let views = w3d_raster::render_oracle_views(&mesh, &rig, args.size)?;
-    views.save(&args.out, &rig)?;
+    let views = wonder3d::raster::render_oracle_views(&mesh, &rig, args.size)?;
+    views.save(&args.out)?;
     println!(
         "wrote {} views of {} ({}×{}) to {}",
         rig.len(),

@@ -2,15 +2,14 @@
 
 use std::path::PathBuf;
 
-use w3d_core::{Result, save_mesh};
-use w3d_recon::{Preset, ReconOptions, reconstruct};
-use w3d_texture::{TextureOptions, bake};
+use wonder3d::{Result, TextureOptions};
 
-use crate::generate::{ModelArgs, generate_views};
-use crate::progress::{recon_progress, stage_bar};
+use crate::args::PresetArg;
+use crate::generate::ModelArgs;
 
 /// Arguments of `wonder3d run`.
 #[derive(clap::Args)]
+#[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
 pub struct RunArgs {
     /// Input image: a PNG with an alpha channel masking the object (background removed).
     image: PathBuf,
@@ -22,44 +21,70 @@ pub struct RunArgs {
     /// Also keep the generated views in this folder (the `wonder3d generate` layout).
     #[arg(long)]
     views: Option<PathBuf>,
-    /// Reconstruction preset: fast, default or quality.
-    #[arg(long, default_value = "default")]
-    preset: String,
+    /// Reconstruction preset.
+    #[arg(long, value_enum, default_value_t = PresetArg::Default)]
+    preset: PresetArg,
     /// Side of the baked texture in texels.
     #[arg(long, default_value_t = TextureOptions::default().size)]
     texture_size: u32,
+    /// Also write the run's report (generation settings, stage timings, reconstruction and
+    /// texture measurements) as JSON.
+    #[arg(long)]
+    report: Option<PathBuf>,
     /// No progress bars.
     #[arg(long)]
     quiet: bool,
 }
 
 /// Runs `wonder3d run`.
+#[cfg(feature = "diffusion")]
 pub fn run(args: &RunArgs) -> Result<()> {
-    let preset: Preset = args.preset.parse()?;
-    let generated = generate_views(&args.image, &args.model, args.quiet)?;
+    use wonder3d::core::io::write_atomic;
+    use wonder3d::{Error, Image, Pipeline, check_mesh_output, check_parent};
+
+    use crate::{generate, progress};
+
+    check_mesh_output(&args.out)?;
     if let Some(dir) = &args.views {
-        generated.views.save(dir, &generated.rig)?;
-        generated.input.write_png(dir.join("input.png"))?;
+        generate::check_out_dir(dir)?;
     }
-    let bar = stage_bar(args.quiet, "reconstruct")?;
-    let (mesh, report) =
-        reconstruct(&generated.views, &generated.rig, &ReconOptions::preset(preset), &mut recon_progress(&bar))?;
+    if let Some(path) = &args.report {
+        check_parent(path)?;
+    }
+    let rgba = Image::read_png(&args.image)?;
+    let bar = progress::bar(args.quiet)?;
+    bar.set_prefix("load");
+    let pipeline = Pipeline::new()
+        .with_preset(args.preset.into())
+        .with_texture_size(args.texture_size)
+        .with_model(generate::load(&args.model)?);
+    let output = pipeline.from_image(&rgba, &mut progress::follow(&bar))?;
     bar.finish_and_clear();
-    let bar = stage_bar(args.quiet, "texture")?;
-    bar.enable_steady_tick(std::time::Duration::from_millis(200));
-    let options = TextureOptions { size: args.texture_size, ..TextureOptions::default() };
-    let textured = bake(&mesh, &generated.views, &generated.rig, &options)?;
-    bar.finish_and_clear();
-    save_mesh(&args.out, &textured.mesh)?;
+    output.save(&args.out)?;
+    if let (Some(dir), Some(input)) = (&args.views, &output.input) {
+        generate::save_generated(&wonder3d::Generated::new(output.views.clone(), input.clone()), dir)?;
+    }
+    if let Some(path) = &args.report {
+        let json = output.report_json()?;
+        write_atomic(path, |w| std::io::Write::write_all(w, json.as_bytes()).map_err(|e| Error::io(path, e)))?;
+    }
+    let r = &output.report;
     println!(
-        "{} -> {}: {} triangles (init: {}), {}×{} texture, {:.1} s reconstruction",
+        "{} -> {}: {} triangles (init: {}), {}×{} texture, {:.1} s generation, {:.1} s reconstruction",
         args.image.display(),
         args.out.display(),
-        mesh.triangle_count(),
-        report.init.reason,
+        r.triangles,
+        r.reconstruction.init.reason,
         args.texture_size,
         args.texture_size,
-        report.seconds
+        r.seconds.generate,
+        r.seconds.reconstruct
     );
     Ok(())
+}
+
+/// Runs `wonder3d run` (this binary has no model).
+#[cfg(not(feature = "diffusion"))]
+pub fn run(_: &RunArgs) -> Result<()> {
+    Err(crate::generate::without_model())
 }

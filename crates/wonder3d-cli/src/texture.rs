@@ -1,11 +1,11 @@
 //! `wonder3d texture MESH VIEWS_DIR --out OUT`: bake the colour views onto a mesh.
 
 use std::path::PathBuf;
-use std::time::Duration;
 
-use indicatif::{ProgressBar, ProgressStyle};
-use w3d_core::{Result, ViewSet, load_mesh, save_mesh};
-use w3d_texture::{BakeStage, TextureOptions, bake_with_progress, fuse_vertex_colours};
+use wonder3d::texture::{bake_with_progress, fuse_vertex_colours};
+use wonder3d::{Progress, Result, Stage, TextureOptions, ViewSet, check_mesh_output, load_mesh, save_mesh};
+
+use crate::progress;
 
 /// Arguments of `wonder3d texture`.
 #[derive(clap::Args)]
@@ -39,24 +39,26 @@ pub struct TextureArgs {
     /// for views rendered from a raw mesh).
     #[arg(long)]
     normalize: bool,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
 }
 
-/// Runs `wonder3d texture`, showing the bake stage on a spinner.
+/// Runs `wonder3d texture`.
 pub fn run(args: &TextureArgs) -> Result<()> {
+    check_mesh_output(&args.out)?;
     let mut mesh = load_mesh(&args.mesh)?.without_attributes();
     if args.normalize {
         mesh.normalize_unit_cube();
     }
-    let (views, rig) = ViewSet::load(&args.views)?;
-    let options = TextureOptions {
-        size: args.size,
-        padding: args.padding,
-        dilation: args.dilation,
-        view_weight_exponent: args.exponent,
-        ..TextureOptions::default()
-    };
+    let views = ViewSet::load(&args.views)?;
+    let mut options = TextureOptions::default();
+    options.size = args.size;
+    options.padding = args.padding;
+    options.dilation = args.dilation;
+    options.view_weight_exponent = args.exponent;
     if args.vertex_colours {
-        let fused = fuse_vertex_colours(&mesh, &views, &rig, &options)?;
+        let fused = fuse_vertex_colours(&mesh, &views, &options)?;
         save_mesh(&args.out, &fused.mesh)?;
         println!(
             "wrote {}: {} views, vertex colours, seen vertices {:.1} %",
@@ -66,23 +68,12 @@ pub fn run(args: &TextureArgs) -> Result<()> {
         );
         return Ok(());
     }
-    let spinner = ProgressBar::new_spinner();
-    spinner.set_style(ProgressStyle::with_template("{spinner} [{elapsed_precise}] {msg}").expect("valid template"));
-    spinner.enable_steady_tick(Duration::from_millis(120));
-    let stages = 4;
-    let mut step = 0;
-    let result = bake_with_progress(&mesh, &views, &rig, &options, &mut |stage| {
-        step += 1;
-        let what = match stage {
-            BakeStage::FusingVertexColours => "fusing vertex colours",
-            BakeStage::BuildingAtlas => "building the uv atlas",
-            BakeStage::Baking => "baking the views into the texture",
-            BakeStage::Dilating => "dilating across chart borders",
-        };
-        spinner.set_message(format!("{step}/{stages} {what}"));
-    });
-    spinner.finish_and_clear();
-    let textured = result?;
+    let bar = progress::bar(args.quiet)?;
+    let mut follow = progress::follow(&bar);
+    let textured = bake_with_progress(&mesh, &views, &options, &mut |stage| {
+        follow(Progress::new(Stage::Texture(stage.into()), 0, 1, None))
+    })?;
+    bar.finish_and_clear();
     let r = textured.report;
     save_mesh(&args.out, &textured.mesh)?;
     println!(

@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 use std::process::Command;
 
-use w3d_core::{ViewRig, ViewSet};
+use wonder3d::{ViewRig, ViewSet};
 
 fn assets() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../assets")
@@ -30,10 +30,10 @@ fn render_writes_a_view_set_that_loads_back() {
         out.to_str().unwrap(),
     ]);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    let (views, rig) = ViewSet::load(&out).unwrap();
-    assert_eq!(rig, ViewRig::wonder3d_persp());
+    let views = ViewSet::load(&out).unwrap();
+    assert_eq!(views.rig(), &ViewRig::wonder3d_persp());
     assert_eq!((views.width(), views.height()), (64, 64));
-    for v in &views.views {
+    for v in views.views() {
         let covered = v.mask.data().iter().filter(|&&m| m > 0.5).count();
         assert!(covered > 200, "{}: only {covered} foreground pixels", v.name);
         assert!(v.colour.is_some() && v.depth.is_some(), "{}", v.name);
@@ -84,13 +84,13 @@ fn texture_bakes_rendered_views_into_a_glb_and_an_obj() {
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     let stdout = String::from_utf8_lossy(&run.stdout);
     assert!(stdout.contains("charts") && stdout.contains("6 views"), "{stdout}");
-    let mesh = w3d_core::load_mesh(&glb).unwrap();
+    let mesh = wonder3d::load_mesh(&glb).unwrap();
     assert_eq!(mesh.texture().unwrap().width(), 128);
     assert!(mesh.uvs().is_some());
     let obj = dir.path().join("spot_vc.obj");
     let run = wonder3d(&[&args[..], &[obj.to_str().unwrap(), "--vertex-colours"]].concat());
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    let mesh = w3d_core::load_mesh(&obj).unwrap();
+    let mesh = wonder3d::load_mesh(&obj).unwrap();
     assert!(mesh.colours().is_some() && mesh.texture().is_none());
     // Bad input names the problem.
     let run = wonder3d(&["texture", spot, dir.path().to_str().unwrap(), "--out", glb.to_str().unwrap()]);

@@ -1,21 +1,56 @@
 //! **wonder3d**: one photo of an object in, a textured, watertight 3D mesh out — a Rust
-//! reimplementation of Wonder3D++. This facade re-exports the workspace's crates under one
-//! name; depend on a single `w3d-*` crate instead when you need only one stage (for
-//! example [`core`] for meshes, cameras and IO).
+//! reimplementation of Wonder3D++ (cross-domain multi-view diffusion + cascaded mesh
+//! extraction).
+//!
+//! [`Pipeline`] is the whole job as one object: views (normal maps, masks and colours of a
+//! 6-view rig) → closed mesh → UV atlas and baked texture, or, with a loaded model (feature
+//! `diffusion`, on by default), an RGBA image → generated views → the same. One staged
+//! [`Progress`] callback and one serialisable [`Report`] cover every stage. Each stage is
+//! also its own crate, re-exported here ([`recon`], [`texture`], [`raster`], …): depend on
+//! `w3d-recon` alone to embed only the mesh extraction in an engine (no file formats, no
+//! Burn; `examples/engine_embedding.rs`).
 //!
 //! ```
-//! use wonder3d::{ViewRig, load_mesh};
+//! use wonder3d::{Pipeline, Preset, ViewRig};
 //!
-//! let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets/spot.obj");
-//! let mut spot = load_mesh(path)?;
-//! spot.normalize_unit_cube();
-//! let rig = ViewRig::wonder3d_ortho();
-//! assert_eq!(rig.views.iter().map(|v| v.name.as_str()).collect::<Vec<_>>(),
-//!            ["front", "front_right", "right", "back", "left", "front_left"]);
-//! assert!(spot.texture().is_some());
+//! # let dir = tempfile::tempdir()?;
+//! # let path = dir.path().join("views");
+//! # let spot = wonder3d::demo::bundled_spot()?;
+//! # wonder3d::raster::render_oracle_views(&spot, &ViewRig::wonder3d_ortho(), 96)?.save(&path)?;
+//! let views = wonder3d::ViewSet::load(&path)?;     // cameras.json + normal/mask/colour PNGs
+//! let pipeline = Pipeline::new().with_preset(Preset::Fast).with_texture_size(256);
+//! let output = pipeline.from_views(&views, &mut |p| eprintln!("{} {}/{}", p.stage.name(), p.done, p.total))?;
+//! output.save(dir.path().join("object.glb"))?;     // textured, self-contained GLB
+//! assert!(output.report.triangles > 500 && output.mesh.texture().is_some());
+//! # Ok::<(), wonder3d::Error>(())
+//! ```
+//!
+//! Generating views needs the published Wonder3D++ weights (`docs/weights.md`):
+//!
+//! ```no_run
+//! # #[cfg(feature = "diffusion")] {
+//! use wonder3d::{Generator, Image, Pipeline};
+//!
+//! let model = Generator::load("ckpts/wonder3d_plus")?;
+//! let pipeline = Pipeline::new().with_model(model);
+//! let output = pipeline.from_image(&Image::read_png("cup.png")?, &mut |_| {})?;
+//! output.save("cup.glb")?;
+//! # }
 //! # Ok::<(), wonder3d::Error>(())
 //! ```
 
+pub mod demo;
+#[cfg(feature = "diffusion")]
+mod generate;
+mod pipeline;
+pub mod sheet;
+
+#[cfg(feature = "diffusion")]
+pub use generate::{Generated, Generator};
+pub use pipeline::{
+    GenerationReport, Output, Pipeline, Progress, Report, Seconds, Stage, TextureStage, check_mesh_output,
+    check_parent,
+};
 /// Meshes, cameras, view rigs, images, view sets and file IO (the `w3d-core` crate).
 pub use w3d_core as core;
 pub use w3d_core::{
@@ -26,16 +61,20 @@ pub use w3d_core::{
 /// × {normal, colour} → `ViewSet`) (the `w3d-diffusion` crate; feature `diffusion`, default).
 #[cfg(feature = "diffusion")]
 pub use w3d_diffusion as diffusion;
+#[cfg(feature = "diffusion")]
+pub use w3d_diffusion::{CameraType, SampleOptions};
 /// Evaluation metrics: Chamfer, F-score, volume IoU, normal consistency, PSNR / SSIM
 /// (the `w3d-eval` crate).
 pub use w3d_eval as eval;
 /// The differentiable CPU rasteriser and render helpers (the `w3d-raster` crate).
 pub use w3d_raster as raster;
-/// Mesh extraction from normal maps: normal integration, coarse reconstruction (the
-/// `w3d-recon` crate).
+/// Mesh extraction from normal maps: initialisation, coarse reconstruction, untangling and
+/// polishing (the `w3d-recon` crate).
 pub use w3d_recon as recon;
+pub use w3d_recon::{Preset, ReconOptions};
 /// Continuous remeshing: the mesh optimiser and remesh operations (the `w3d-remesh` crate).
 pub use w3d_remesh as remesh;
 /// Texturing: vertex-colour fusion, UV atlas, baking and dilation (the `w3d-texture`
 /// crate).
 pub use w3d_texture as texture;
+pub use w3d_texture::TextureOptions;

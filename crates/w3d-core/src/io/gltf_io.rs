@@ -17,10 +17,35 @@ use crate::{Error, Mesh, Result};
 pub fn read_gltf(path: impl AsRef<Path>) -> Result<Mesh> {
     let path = path.as_ref();
     std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
-    let (doc, buffers, images) = gltf::import(path).map_err(|e| match e {
+    let imported = gltf::import(path).map_err(|e| match e {
         gltf::Error::Io(io) => Error::io(path, io),
         other => Error::format(path, "glTF data", format!("a valid glTF 2.0 file ({other})")),
     })?;
+    mesh_from_document(path, imported)
+}
+
+/// Reads a self-contained `.glb` (or `.gltf` with data-URI buffers and images) from memory,
+/// as [`read_gltf`] reads a file: for meshes embedded in a program (`include_bytes!`) or
+/// received over a network. `name` stands for the file in error messages.
+///
+/// ```
+/// let bytes = std::fs::read(concat!(env!("CARGO_MANIFEST_DIR"), "/../wonder3d/assets/spot.glb"))?;
+/// let spot = w3d_core::io::read_glb_bytes("spot.glb", &bytes)?;
+/// assert!(spot.texture().is_some());
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
+pub fn read_glb_bytes(name: impl AsRef<Path>, bytes: &[u8]) -> Result<Mesh> {
+    let name = name.as_ref();
+    let imported = gltf::import_slice(bytes)
+        .map_err(|e| Error::format(name, "glTF data", format!("a valid self-contained glTF 2.0 binary ({e})")))?;
+    mesh_from_document(name, imported)
+}
+
+/// The mesh of an imported glTF document (see [`read_gltf`]); `path` names it in errors.
+fn mesh_from_document(
+    path: &Path,
+    (doc, buffers, images): (gltf::Document, Vec<gltf::buffer::Data>, Vec<gltf::image::Data>),
+) -> Result<Mesh> {
     let mut acc = Accumulator::default();
     let roots: Vec<gltf::Node> = match doc.default_scene().or_else(|| doc.scenes().next()) {
         Some(scene) => scene.nodes().collect(),

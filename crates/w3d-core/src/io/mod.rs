@@ -12,7 +12,7 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-pub use gltf_io::{read_gltf, write_glb};
+pub use gltf_io::{read_glb_bytes, read_gltf, write_glb};
 pub use obj::{read_obj, write_obj};
 pub use ply::{read_ply, write_ply};
 

@@ -1,0 +1,85 @@
+//! [`Generator`]: the Wonder3D++ multi-view diffusion model loaded once, turning RGBA images
+//! into 6 normal + 6 colour views (feature `diffusion`).
+
+use std::path::Path;
+
+use w3d_diffusion::{Device, MultiViewPipeline, SampleOptions, prepare_input};
+
+use crate::pipeline::{Progress, Stage};
+use crate::{Image, Result, ViewSet};
+
+/// The views a [`Generator`] made of one image.
+#[derive(Debug, Clone)]
+#[non_exhaustive]
+pub struct Generated {
+    /// The 6 views with their rig (`wonder3d-ortho` or `wonder3d-persp`): unit normals in
+    /// the input camera's frame, colours, masks from the model's white background.
+    pub views: ViewSet,
+    /// The conditioning image the model saw: the input cropped and centred on white at the
+    /// model's resolution.
+    pub input: Image,
+}
+
+impl Generated {
+    /// Views and the conditioning image they were generated from.
+    pub fn new(views: ViewSet, input: Image) -> Generated {
+        Generated { views, input }
+    }
+}
+
+/// A loaded multi-view diffusion model with its sampling options; load it once and generate
+/// many images (loading reads every weight file).
+#[derive(Debug)]
+pub struct Generator {
+    pipeline: MultiViewPipeline,
+    device: Device,
+    options: SampleOptions,
+}
+
+impl Generator {
+    /// Loads a checkpoint directory (`unet/`, `vae/`, `image_encoder/`, `scheduler/`, the
+    /// layout of `docs/weights.md`) on the default CPU device with the Wonder3D++ sampling
+    /// defaults.
+    pub fn load(dir: impl AsRef<Path>) -> Result<Generator> {
+        Generator::load_on(dir, w3d_diffusion::default_device())
+    }
+
+    /// Loads a checkpoint directory onto `device`.
+    pub fn load_on(dir: impl AsRef<Path>, device: Device) -> Result<Generator> {
+        let pipeline = MultiViewPipeline::from_dir(dir, &device)?;
+        Ok(Generator { pipeline, device, options: SampleOptions::default() })
+    }
+
+    /// The same model with other sampling options (steps, guidance, eta, camera type, seed).
+    pub fn with_options(mut self, options: SampleOptions) -> Generator {
+        self.options = options;
+        self
+    }
+
+    /// The sampling options in use.
+    pub fn options(&self) -> &SampleOptions {
+        &self.options
+    }
+
+    /// The underlying diffusion pipeline (for DDIM inversion, custom sampling loops …).
+    pub fn pipeline(&self) -> &MultiViewPipeline {
+        &self.pipeline
+    }
+
+    /// Generates the views of one RGBA image (alpha masks the object): preprocessing, CLIP
+    /// and VAE conditions, guided sampling (one [`Stage::Denoise`] event per step), decoding.
+    pub fn generate(&self, rgba: &Image, progress: &mut dyn FnMut(Progress)) -> Result<Generated> {
+        progress(Progress::new(Stage::Condition, 0, 1, None));
+        let input = prepare_input(rgba, self.pipeline.image_size() as u32)?;
+        let cond = self.pipeline.condition(&input, &self.device)?;
+        progress(Progress::new(Stage::Condition, 1, 1, None));
+        let noise = self.pipeline.initial_noise(self.options.seed, &self.device);
+        let latents = self.pipeline.sample_from(noise, &cond, &self.options, &mut |done, total| {
+            progress(Progress::new(Stage::Denoise, done, total, None))
+        })?;
+        progress(Progress::new(Stage::Decode, 0, 1, None));
+        let views = self.pipeline.decode(latents, self.options.camera)?.to_view_set()?;
+        progress(Progress::new(Stage::Decode, 1, 1, None));
+        Ok(Generated { views, input })
+    }
+}

@@ -1,0 +1,392 @@
+//! [`Pipeline`]: views (or an image, with a model) → closed mesh → textured mesh, with one
+//! staged progress callback and one serialisable [`Report`].
+
+use std::path::Path;
+use std::time::Instant;
+
+use serde::Serialize;
+use w3d_recon::{Preset, ReconOptions, ReconReport};
+use w3d_texture::{BakeReport, BakeStage, TextureOptions};
+
+use crate::{Error, Image, Mesh, Result, ViewSet};
+
+/// A stage of [`Pipeline`], as reported to the progress callback.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+#[non_exhaustive]
+pub enum Stage {
+    /// Rendering oracle views of a known mesh (the demo, benchmarks).
+    Render,
+    /// Preparing the input image and computing the model's conditions (CLIP, VAE).
+    Condition,
+    /// Denoising: one unit per sampling step.
+    Denoise,
+    /// Decoding the latents into the 6 normal and 6 colour views.
+    Decode,
+    /// Mesh extraction; the inner stage says which part (init, coarse, untangle, polish).
+    Reconstruct(w3d_recon::Stage),
+    /// Texturing; the inner stage says which part (fusion, atlas, baking, dilation).
+    Texture(TextureStage),
+    /// Scoring a result against a ground truth (the demo).
+    Evaluate,
+}
+
+/// The parts of texturing, in order (the stages of `w3d_texture::bake_with_progress`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+#[non_exhaustive]
+pub enum TextureStage {
+    /// Rasterising the views and fusing per-vertex colours.
+    FusingVertexColours,
+    /// Building the UV atlas.
+    BuildingAtlas,
+    /// Projecting the views into the texels.
+    Baking,
+    /// Dilating across chart borders.
+    Dilating,
+}
+
+impl From<BakeStage> for TextureStage {
+    fn from(stage: BakeStage) -> Self {
+        match stage {
+            BakeStage::FusingVertexColours => TextureStage::FusingVertexColours,
+            BakeStage::BuildingAtlas => TextureStage::BuildingAtlas,
+            BakeStage::Baking => TextureStage::Baking,
+            BakeStage::Dilating => TextureStage::Dilating,
+        }
+    }
+}
+
+impl Stage {
+    /// A short lower-case name for progress bars and logs (`denoise`, `coarse`, `atlas` …).
+    pub fn name(self) -> &'static str {
+        match self {
+            Stage::Render => "render",
+            Stage::Evaluate => "evaluate",
+            Stage::Condition => "condition",
+            Stage::Denoise => "denoise",
+            Stage::Decode => "decode",
+            Stage::Reconstruct(w3d_recon::Stage::Init) => "init",
+            Stage::Reconstruct(w3d_recon::Stage::Coarse) => "coarse",
+            Stage::Reconstruct(w3d_recon::Stage::Untangle) => "untangle",
+            Stage::Reconstruct(w3d_recon::Stage::Polish) => "polish",
+            Stage::Texture(TextureStage::FusingVertexColours) => "fusion",
+            Stage::Texture(TextureStage::BuildingAtlas) => "atlas",
+            Stage::Texture(TextureStage::Baking) => "bake",
+            Stage::Texture(TextureStage::Dilating) => "dilate",
+        }
+    }
+}
+
+/// A progress event: `done` of `total` units of `stage` (steps where the stage has steps,
+/// else 0/1 then 1/1), with the current loss where the stage optimises one.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
+pub struct Progress {
+    /// The stage running.
+    pub stage: Stage,
+    /// Units done.
+    pub done: usize,
+    /// Units in the stage.
+    pub total: usize,
+    /// The current loss, when the stage has one.
+    pub loss: Option<f32>,
+}
+
+impl Progress {
+    /// An event of `stage`.
+    pub fn new(stage: Stage, done: usize, total: usize, loss: Option<f32>) -> Self {
+        Progress { stage, done, total, loss }
+    }
+}
+
+/// Wall-clock seconds of each part of a [`Pipeline`] run.
+#[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
+#[non_exhaustive]
+pub struct Seconds {
+    /// Generating the views (0 when the run started from views).
+    pub generate: f64,
+    /// Mesh extraction.
+    pub reconstruct: f64,
+    /// Texturing (0 without texture).
+    pub texture: f64,
+    /// The whole run.
+    pub total: f64,
+}
+
+/// Everything a [`Pipeline`] run measured; serialises to JSON with stable keys.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[non_exhaustive]
+pub struct Report {
+    /// The reconstruction preset, when the options came from one.
+    pub preset: Option<Preset>,
+    /// Triangles of the untextured mesh.
+    pub triangles: usize,
+    /// Stage timings.
+    pub seconds: Seconds,
+    /// The reconstruction's own report (start mesh, losses, crossings, per-stage timings).
+    pub reconstruction: ReconReport,
+    /// The texture bake's report, when the run textured the mesh.
+    pub texture: Option<BakeReport>,
+    /// The generation settings, when the run started from an image.
+    pub generation: Option<GenerationReport>,
+}
+
+/// How the views of a run were generated.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[non_exhaustive]
+pub struct GenerationReport {
+    /// Sampling steps.
+    pub steps: usize,
+    /// Classifier-free guidance scale.
+    pub guidance: f64,
+    /// Sampling noise seed.
+    pub seed: u64,
+    /// The rig of the generated views (`wonder3d-ortho` or `wonder3d-persp`).
+    pub rig: String,
+}
+
+/// The result of a [`Pipeline`] run.
+#[derive(Debug, Clone)]
+#[non_exhaustive]
+pub struct Output {
+    /// The final mesh: textured (uvs, baked sRGB texture, vertices split along chart seams)
+    /// unless the pipeline was built [`Pipeline::without_texture`], in the views' canonical
+    /// frame (y up, front camera on +z; unit-cube scale).
+    pub mesh: Mesh,
+    /// The closed reconstructed mesh before texturing (welded, no attributes).
+    pub geometry: Mesh,
+    /// The views the mesh was made from (generated ones, for a run from an image).
+    pub views: ViewSet,
+    /// The conditioning image the model saw (white background, the model's size), for a
+    /// run from an image.
+    pub input: Option<Image>,
+    /// What the run measured.
+    pub report: Report,
+}
+
+impl Output {
+    /// Writes [`Output::mesh`] to `path` (`.glb` with the texture embedded, `.obj` with
+    /// `.mtl` and `.png` beside it, or `.ply`), atomically.
+    pub fn save(&self, path: impl AsRef<Path>) -> Result<()> {
+        w3d_core::save_mesh(path, &self.mesh)
+    }
+
+    /// The report as pretty-printed JSON.
+    pub fn report_json(&self) -> Result<String> {
+        serde_json::to_string_pretty(&self.report).map_err(|e| Error::invalid("report", e.to_string()))
+    }
+}
+
+/// Fails unless `path` can take a mesh: a supported extension (`.glb`, `.gltf` is read-only
+/// and refused, `.obj`, `.ply`) and an existing parent folder. Call it before long work so a
+/// typo fails in a millisecond, not after the reconstruction.
+pub fn check_mesh_output(path: impl AsRef<Path>) -> Result<()> {
+    let path = path.as_ref();
+    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    if !matches!(ext.as_deref(), Some("glb" | "obj" | "ply")) {
+        return Err(Error::invalid(
+            format!("output {}", path.display()),
+            "a .glb, .obj or .ply file name (the mesh formats this library writes)",
+        ));
+    }
+    check_parent(path)
+}
+
+/// Fails unless the folder that would hold `path` exists (an empty parent is the working
+/// directory) and `path` itself is not a folder.
+pub fn check_parent(path: &Path) -> Result<()> {
+    if path.is_dir() {
+        return Err(Error::invalid(format!("output {}", path.display()), "a file name, but it is a folder"));
+    }
+    match path.parent() {
+        Some(parent) if !parent.as_os_str().is_empty() && !parent.is_dir() => Err(Error::invalid(
+            format!("output {}", path.display()),
+            format!("an existing folder {}; create it first", parent.display()),
+        )),
+        _ => Ok(()),
+    }
+}
+
+/// The whole extraction as one configurable object: views → closed mesh (`w3d-recon`) →
+/// textured mesh (`w3d-texture`), and, with a model ([`Pipeline::with_model`], feature
+/// `diffusion`), image → views first.
+///
+/// Built with chained setters so new options never break callers:
+///
+/// ```
+/// use wonder3d::{Pipeline, Preset};
+///
+/// let pipeline = Pipeline::new().with_preset(Preset::Fast).with_texture_size(512);
+/// assert_eq!(pipeline.texture_options().map(|t| t.size), Some(512));
+/// ```
+pub struct Pipeline {
+    preset: Option<Preset>,
+    recon: ReconOptions,
+    texture: Option<TextureOptions>,
+    #[cfg(feature = "diffusion")]
+    model: Option<crate::generate::Generator>,
+}
+
+impl Default for Pipeline {
+    fn default() -> Self {
+        Pipeline::new()
+    }
+}
+
+impl std::fmt::Debug for Pipeline {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Pipeline")
+            .field("preset", &self.preset)
+            .field("recon", &self.recon)
+            .field("texture", &self.texture)
+            .field("model", &self.has_model())
+            .finish()
+    }
+}
+
+impl Pipeline {
+    /// The default preset and a 1024² texture, no model.
+    pub fn new() -> Self {
+        Pipeline {
+            preset: Some(Preset::Default),
+            recon: ReconOptions::preset(Preset::Default),
+            texture: Some(TextureOptions::default()),
+            #[cfg(feature = "diffusion")]
+            model: None,
+        }
+    }
+
+    /// Reconstruction options of a named speed/accuracy preset (`docs/accuracy.md`).
+    pub fn with_preset(mut self, preset: Preset) -> Self {
+        self.preset = Some(preset);
+        self.recon = ReconOptions::preset(preset);
+        self
+    }
+
+    /// Explicit reconstruction options (the report then names no preset).
+    pub fn with_recon_options(mut self, options: ReconOptions) -> Self {
+        self.preset = None;
+        self.recon = options;
+        self
+    }
+
+    /// Texture options (and texturing on, if it was off).
+    pub fn with_texture_options(mut self, options: TextureOptions) -> Self {
+        self.texture = Some(options);
+        self
+    }
+
+    /// Side of the square baked texture in texels (texturing on, other options kept).
+    pub fn with_texture_size(mut self, size: u32) -> Self {
+        let mut options = self.texture.unwrap_or_default();
+        options.size = size;
+        self.texture = Some(options);
+        self
+    }
+
+    /// No texturing: [`Output::mesh`] is the closed untextured mesh.
+    pub fn without_texture(mut self) -> Self {
+        self.texture = None;
+        self
+    }
+
+    /// The reconstruction options in use.
+    pub fn recon_options(&self) -> &ReconOptions {
+        &self.recon
+    }
+
+    /// The texture options in use, `None` without texturing.
+    pub fn texture_options(&self) -> Option<&TextureOptions> {
+        self.texture.as_ref()
+    }
+
+    /// Whether a model is loaded, so [`Pipeline::from_image`] can run.
+    pub fn has_model(&self) -> bool {
+        #[cfg(feature = "diffusion")]
+        return self.model.is_some();
+        #[cfg(not(feature = "diffusion"))]
+        false
+    }
+
+    /// Reconstructs and textures a mesh from views (normal maps, masks and, for texture,
+    /// colours) with the rig they carry. `progress` receives [`Progress`] events (pass
+    /// `&mut |_| {}` to ignore them).
+    pub fn from_views(&self, views: &ViewSet, progress: &mut dyn FnMut(Progress)) -> Result<Output> {
+        self.finish(views.clone(), None, None, 0.0, progress)
+    }
+
+    /// Mesh and texture from already generated or loaded views; `input`, `generation` and
+    /// `generate_seconds` describe how they were made.
+    fn finish(
+        &self,
+        views: ViewSet,
+        input: Option<Image>,
+        generation: Option<GenerationReport>,
+        generate_seconds: f64,
+        progress: &mut dyn FnMut(Progress),
+    ) -> Result<Output> {
+        let start = Instant::now();
+        let (geometry, reconstruction) = w3d_recon::reconstruct(&views, &self.recon, &mut |p| {
+            progress(Progress::new(Stage::Reconstruct(p.stage), p.done, p.total, p.loss))
+        })?;
+        let reconstruct_seconds = start.elapsed().as_secs_f64();
+        let t = Instant::now();
+        let (mesh, texture) = match &self.texture {
+            Some(options) => {
+                let textured = w3d_texture::bake_with_progress(&geometry, &views, options, &mut |stage| {
+                    progress(Progress::new(Stage::Texture(stage.into()), 0, 1, None))
+                })?;
+                progress(Progress::new(Stage::Texture(TextureStage::Dilating), 1, 1, None));
+                (textured.mesh, Some(textured.report))
+            }
+            None => (geometry.clone(), None),
+        };
+        let texture_seconds = t.elapsed().as_secs_f64();
+        let report = Report {
+            preset: self.preset,
+            triangles: geometry.triangle_count(),
+            seconds: Seconds {
+                generate: generate_seconds,
+                reconstruct: reconstruct_seconds,
+                texture: texture_seconds,
+                total: generate_seconds + start.elapsed().as_secs_f64(),
+            },
+            reconstruction,
+            texture,
+            generation,
+        };
+        Ok(Output { mesh, geometry, views, input, report })
+    }
+}
+
+#[cfg(feature = "diffusion")]
+impl Pipeline {
+    /// Uses `model` for [`Pipeline::from_image`].
+    pub fn with_model(mut self, model: crate::generate::Generator) -> Self {
+        self.model = Some(model);
+        self
+    }
+
+    /// The loaded model, if any.
+    pub fn model(&self) -> Option<&crate::generate::Generator> {
+        self.model.as_ref()
+    }
+
+    /// One image to a textured mesh: the model generates 6 normal + 6 colour views of the
+    /// RGBA `image` (alpha masks the object), then [`Pipeline::from_views`] runs on them.
+    pub fn from_image(&self, image: &Image, progress: &mut dyn FnMut(Progress)) -> Result<Output> {
+        let model = self.model.as_ref().ok_or_else(|| {
+            Error::invalid("pipeline model", "a loaded model (Pipeline::with_model) before from_image")
+        })?;
+        let start = Instant::now();
+        let generated = model.generate(image, progress)?;
+        let generation = GenerationReport {
+            steps: model.options().steps,
+            guidance: model.options().guidance,
+            seed: model.options().seed,
+            rig: generated.views.rig().name.clone(),
+        };
+        self.finish(generated.views, Some(generated.input), Some(generation), start.elapsed().as_secs_f64(), progress)
+    }
+}
