@@ -1,6 +1,6 @@
 //! Pinhole and orthographic cameras in the canonical frame.
 //!
-//! Conventions (see `DESIGN.md` §3): the camera frame is OpenGL's — +x to the right of
+//! Conventions (see `docs/architecture.md`): the camera frame is OpenGL's — +x to the right of
 //! the image, +y up, the camera looks along −z. Pixel coordinates are continuous with
 //! the origin at the top-left corner of the image, x to the right and y down, so the
 //! centre of pixel `(i, j)` (column `i`, row `j`) is at `(i + 0.5, j + 0.5)`.
@@ -8,13 +8,13 @@
 //! positive for visible points), for both projections.
 
 use glam::{Mat3, Mat4, Vec3};
-use serde::{Deserialize, Serialize};
 
 use crate::{Error, Result};
 
 /// How a camera maps its 3D frame onto the image plane.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-#[serde(tag = "type", rename_all = "snake_case")]
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
+#[cfg_attr(feature = "serde", serde(tag = "type", rename_all = "snake_case"))]
 pub enum Projection {
     /// Parallel projection; the image spans `[-half_height·aspect, half_height·aspect] ×
     /// [-half_height, half_height]` world units around the viewing axis.
@@ -47,7 +47,8 @@ pub struct Ray {
 }
 
 /// A camera placed with look-at parameters.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct Camera {
     /// Camera centre in world space.
     pub eye: Vec3,

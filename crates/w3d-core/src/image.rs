@@ -1,8 +1,12 @@
-//! Float images (`[H][W][C]`, row-major, origin top-left) and their PNG / EXR IO.
+//! Float images (`[H][W][C]`, row-major, origin top-left) and their PNG / EXR IO (feature
+//! `io`).
 
+#[cfg(feature = "io")]
 use std::io::Write as _;
+#[cfg(feature = "io")]
 use std::path::Path;
 
+#[cfg(feature = "io")]
 use image::ImageEncoder as _;
 
 use crate::{Error, Result};
@@ -114,7 +118,11 @@ impl Image {
         let data = self.data.chunks_exact(3).zip(&alpha.data).flat_map(|(c, &a)| [c[0], c[1], c[2], a]).collect();
         Image::new(self.width, self.height, 4, data)
     }
+}
 
+/// PNG and OpenEXR files (feature `io`).
+#[cfg(feature = "io")]
+impl Image {
     /// Reads a PNG (8 or 16 bit, grey / grey+alpha / RGB / RGBA) as values in `[0, 1]`
     /// exactly as stored (no colour-space conversion). The channel count is the file's.
     pub fn read_png(path: impl AsRef<Path>) -> Result<Self> {

@@ -1,10 +1,21 @@
 //! Core types of wonder3d-rs: [`Mesh`], [`Camera`], the view rigs ([`ViewRig`]), per-view
 //! images ([`ViewSet`], [`Image`]), mesh and image file IO, and the one [`Error`] type.
 //!
+//! Cargo features:
+//! - `io` (default): mesh files (OBJ, PLY, glTF / GLB: the `io` module, `load_mesh`,
+//!   `save_mesh`), PNG / EXR images (`Image::read_png`, `Image::write_exr`, …), view-set
+//!   folders (`ViewSet::save` / `ViewSet::load`), rig JSON (`ViewRig::save_json` /
+//!   `ViewRig::load_json`) and atomic writes (`io::write_atomic`). Implies `serde`.
+//! - `serde`: `Serialize` / `Deserialize` for [`Camera`], [`Projection`], [`RigView`] and
+//!   [`ViewRig`].
+//!
+//! An engine that only needs the in-memory types (to run mesh extraction, say) depends on
+//! `w3d-core` with `default-features = false` and pulls no file-format parser.
+//!
 //! Everything here is plain data: slices of `[f32; 3]` positions and `[u32; 3]`
 //! counter-clockwise triangles, `[H][W][C]` row-major float images, and `glam` vectors for
 //! small math. The canonical frame is right-handed and y-up, with the input (front)
-//! camera on +z looking along −z (see `DESIGN.md` §3).
+//! camera on +z looking along −z (see `docs/architecture.md`, Conventions).
 //!
 //! ```
 //! use w3d_core::{Mesh, ViewRig};
@@ -30,6 +41,7 @@ pub mod camera;
 mod error;
 pub mod image;
 mod intersect;
+#[cfg(feature = "io")]
 pub mod io;
 pub mod mesh;
 pub mod rig;
@@ -39,6 +51,7 @@ pub use camera::{Camera, Projection, Ray};
 pub use error::{Error, Result};
 pub use image::Image;
 pub use intersect::{self_intersections, self_intersections_involving};
+#[cfg(feature = "io")]
 pub use io::{load_mesh, save_mesh};
 pub use mesh::{Mesh, Normalization, Topology};
 pub use rig::{RigView, ViewRig};

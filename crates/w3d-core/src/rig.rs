@@ -1,13 +1,14 @@
 //! Camera rigs: the Wonder3D 6-view rig and the SyncDreamer 16-view evaluation rig.
 //!
-//! Every crate takes its cameras from here (`DESIGN.md` §3). Rigs are independent of
+//! Every crate takes its cameras from here (conventions in `docs/architecture.md`). Rigs are independent of
 //! image resolution; a [`crate::ViewSet`] carries the images.
 
+#[cfg(feature = "io")]
 use std::io::Write as _;
+#[cfg(feature = "io")]
 use std::path::Path;
 
 use glam::Vec3;
-use serde::{Deserialize, Serialize};
 
 use crate::camera::{Camera, Projection};
 use crate::{Error, Result};
@@ -29,7 +30,8 @@ pub const WONDER3D_HALF_EXTENT: f32 = 0.75;
 pub const WONDER3D_DISTANCE: f32 = WONDER3D_HALF_EXTENT * 35.0 / 16.0;
 
 /// One named camera of a rig.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct RigView {
     /// View name, e.g. `front_right`; also used in file names.
     pub name: String,
@@ -38,7 +40,8 @@ pub struct RigView {
 }
 
 /// An ordered set of named cameras around the object.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
 pub struct ViewRig {
     /// Rig name, e.g. `wonder3d_ortho`.
     pub name: String,
@@ -153,7 +156,11 @@ impl ViewRig {
         }
         Ok(())
     }
+}
 
+/// Rig files (feature `io`).
+#[cfg(feature = "io")]
+impl ViewRig {
     /// Writes the rig as JSON (`cameras.json`), atomically.
     pub fn save_json(&self, path: impl AsRef<Path>) -> Result<()> {
         let path = path.as_ref();

@@ -14,6 +14,7 @@
 //! On load, `normal_<view>.exr` is preferred over the PNG when present, and the mask
 //! comes from `mask_<view>.png`, or else from the normal map's alpha.
 
+#[cfg(feature = "io")]
 use std::path::Path;
 
 use crate::image::Image;
@@ -82,7 +83,11 @@ impl ViewSet {
         }
         Ok(())
     }
+}
 
+/// View-set folders (feature `io`).
+#[cfg(feature = "io")]
+impl ViewSet {
     /// Writes the rig and every image into `dir` (created if needed), in the layout of
     /// the module documentation. Each file is written atomically.
     pub fn save(&self, dir: impl AsRef<Path>, rig: &ViewRig) -> Result<()> {
@@ -164,6 +169,7 @@ impl ViewSet {
 }
 
 /// Splits an RGBA image into (RGB mapped by `f`, alpha).
+#[cfg(feature = "io")]
 fn split_rgba(img: &Image, f: impl Fn(f32) -> f32) -> (Image, Image) {
     let rgb: Vec<f32> = img.data().chunks_exact(4).flat_map(|p| [f(p[0]), f(p[1]), f(p[2])]).collect();
     let a: Vec<f32> = img.data().chunks_exact(4).map(|p| p[3]).collect();

@@ -4,13 +4,13 @@
 use glam::Vec3;
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
-use serde::Serialize;
 use w3d_core::{Error, Result};
 
 use crate::sampling::SurfaceSamples;
 
 /// Precision, recall and F-score at one distance threshold τ.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct FScore {
     /// Fraction of predicted points within τ of the ground truth.
     pub precision: f64,

@@ -7,7 +7,6 @@
 use glam::{DMat3, DQuat, DVec3};
 use kiddo::{ImmutableKdTree, SquaredEuclidean};
 use rayon::prelude::*;
-use serde::Serialize;
 use w3d_core::{Error, Mesh, Result};
 
 use crate::sampling::sample_surface;
@@ -33,7 +32,8 @@ impl Default for IcpOptions {
 }
 
 /// A similarity transform `p ↦ scale · rotation · p + translation` (world units).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct Similarity {
     /// Uniform scale factor (positive).
     pub scale: f64,

@@ -48,7 +48,6 @@ pub use visible::{VisibleChamfer, VisibleOptions, visible_points, visible_surfac
 pub use volume::{Grid, occupancy, occupancy_iou, volume_iou};
 pub use winding::WindingNumber;
 
-use serde::Serialize;
 use w3d_core::{Error, Mesh, Result};
 
 /// Options of [`evaluate`].
@@ -73,7 +72,8 @@ impl Default for EvalOptions {
 
 /// Every geometry metric of one prediction against one ground truth, in unit-cube units.
 /// Serialises to JSON with stable keys (`chamfer`, `fscore_0.01`, `iou_64`, …).
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct MeshMetrics {
     /// Chamfer distance `(mean d_pred→gt + mean d_gt→pred) / 2`, Euclidean, not squared.
     pub chamfer: f64,
@@ -82,22 +82,22 @@ pub struct MeshMetrics {
     /// Mean distance from ground-truth samples to the prediction (completeness).
     pub chamfer_gt_to_pred: f64,
     /// F-score at τ = 0.01.
-    #[serde(rename = "fscore_0.01")]
+    #[cfg_attr(feature = "serde", serde(rename = "fscore_0.01"))]
     pub fscore_001: f64,
     /// Precision at τ = 0.01.
-    #[serde(rename = "precision_0.01")]
+    #[cfg_attr(feature = "serde", serde(rename = "precision_0.01"))]
     pub precision_001: f64,
     /// Recall at τ = 0.01.
-    #[serde(rename = "recall_0.01")]
+    #[cfg_attr(feature = "serde", serde(rename = "recall_0.01"))]
     pub recall_001: f64,
     /// F-score at τ = 0.02.
-    #[serde(rename = "fscore_0.02")]
+    #[cfg_attr(feature = "serde", serde(rename = "fscore_0.02"))]
     pub fscore_002: f64,
     /// Precision at τ = 0.02.
-    #[serde(rename = "precision_0.02")]
+    #[cfg_attr(feature = "serde", serde(rename = "precision_0.02"))]
     pub precision_002: f64,
     /// Recall at τ = 0.02.
-    #[serde(rename = "recall_0.02")]
+    #[cfg_attr(feature = "serde", serde(rename = "recall_0.02"))]
     pub recall_002: f64,
     /// Volume IoU on the SyncDreamer 64³ lattice over `[−1, 1]³` ([`Grid::syncdreamer64`]).
     pub iou_64: f64,

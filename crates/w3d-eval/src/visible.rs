@@ -5,7 +5,6 @@
 //! Chamfer of [`crate::evaluate`].
 
 use glam::DVec3;
-use serde::Serialize;
 use w3d_core::{Error, Mesh, Result, ViewRig};
 
 use crate::distance::nearest;
@@ -27,7 +26,8 @@ impl Default for VisibleOptions {
 }
 
 /// The visible-surface Chamfer distance and its parts, in world (unit-cube) units.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct VisibleChamfer {
     /// `(pred_to_gt + gt_to_pred) / 2`, Euclidean, not squared.
     pub chamfer: f64,

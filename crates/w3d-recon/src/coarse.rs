@@ -27,7 +27,6 @@ use std::time::Instant;
 
 use glam::Vec3;
 use rayon::prelude::*;
-use serde::Serialize;
 use w3d_core::{Camera, Error, Mesh, Projection, Result, ViewRig, ViewSet};
 use w3d_raster::{
     EdgeTopology, antialias, antialias_backward, interpolate, interpolate_backward, rasterize_backward, rasterize_rig,
@@ -82,7 +81,8 @@ impl Default for CoarseOptions {
 }
 
 /// What [`reconstruct_coarse`] did.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct CoarseReport {
     /// Total loss before each step.
     pub losses: Vec<f32>,

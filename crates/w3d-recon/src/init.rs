@@ -35,7 +35,6 @@ use std::time::Instant;
 
 use glam::Vec3;
 use rayon::prelude::*;
-use serde::Serialize;
 use w3d_core::{Camera, Error, Image, Mesh, Projection, Result, ViewRig, ViewSet};
 use w3d_raster::rasterize_rig;
 use w3d_remesh::{MeshOptimizer, RemeshOptions};
@@ -88,8 +87,9 @@ impl Default for InitOptions {
 }
 
 /// Which start mesh [`initial_mesh`] chose.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[cfg_attr(feature = "serde", serde(rename_all = "snake_case"))]
 pub enum InitChoice {
     /// Normal integration + screened Poisson + visual-hull carving.
     Poisson,
@@ -102,7 +102,8 @@ pub enum InitChoice {
 }
 
 /// What [`initial_mesh`] did and why.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct InitReport {
     /// The start mesh that was used.
     pub choice: InitChoice,

@@ -5,7 +5,6 @@ use std::fmt;
 use std::str::FromStr;
 use std::time::Instant;
 
-use serde::Serialize;
 use w3d_core::{Error, Mesh, Result, ViewRig, ViewSet};
 
 use crate::coarse::{CoarseOptions, CoarseReport, reconstruct_coarse};
@@ -14,8 +13,9 @@ use crate::polish::{PolishReport, polish};
 use crate::untangle::{UntangleReport, untangle};
 
 /// Named speed/accuracy trade-offs of [`ReconOptions`] (numbers in `docs/accuracy.md`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[cfg_attr(feature = "serde", serde(rename_all = "snake_case"))]
 pub enum Preset {
     /// Coarser mesh (edges from 0.03), 60 steps: a preview in a few seconds.
     Fast,
@@ -103,8 +103,9 @@ impl Default for ReconOptions {
 }
 
 /// A pipeline stage, as reported to the progress callback and in [`ReconReport`].
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[cfg_attr(feature = "serde", serde(rename_all = "snake_case"))]
 pub enum Stage {
     /// Normal integration, concave check, Poisson, hull carving, simplification.
     Init,
@@ -131,7 +132,8 @@ pub struct Progress {
 }
 
 /// Wall-clock time of one stage.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct StageTiming {
     /// Which stage.
     pub stage: Stage,
@@ -140,7 +142,8 @@ pub struct StageTiming {
 }
 
 /// Everything [`reconstruct`] measured.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct ReconReport {
     /// The start mesh: which one and why.
     pub init: InitReport,

@@ -29,14 +29,14 @@
 use std::time::Instant;
 
 use glam::Vec3;
-use serde::Serialize;
 use w3d_core::{Error, Mesh, Result, ViewRig, ViewSet, self_intersections, self_intersections_involving};
 
 use crate::coarse::{CoarseOptions, ViewFit};
 use crate::untangle::vertex_adjacency;
 
 /// What [`polish`] did.
-#[derive(Debug, Clone, PartialEq, Serialize)]
+#[derive(Debug, Clone, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct PolishReport {
     /// Steps run (0 when the mesh entered with crossings: the guard needs a clean start).
     pub steps: usize,

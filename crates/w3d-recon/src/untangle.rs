@@ -27,11 +27,11 @@
 use std::collections::HashMap;
 
 use glam::Vec3;
-use serde::Serialize;
 use w3d_core::{Mesh, Result, self_intersections, self_intersections_involving};
 
 /// What [`untangle`] did.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct UntangleReport {
     /// Crossing triangle pairs before.
     pub before: usize,

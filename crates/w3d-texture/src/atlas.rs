@@ -36,7 +36,8 @@ impl Default for AtlasOptions {
 }
 
 /// Measurements of an atlas.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct AtlasReport {
     /// Number of charts.
     pub charts: usize,

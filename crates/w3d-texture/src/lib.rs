@@ -82,7 +82,8 @@ impl TextureOptions {
 }
 
 /// Measurements of a bake.
-#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(feature = "serde", derive(serde::Serialize))]
 pub struct BakeReport {
     /// The atlas measurements.
     pub atlas: AtlasReport,
