@@ -92,13 +92,13 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     b.finish_with_message(format!("6 oracle views of spot at {0}×{0}", args.size));
 
     let b = stage_bar(args.quiet, "reconstruct")?;
-    let (mesh, recon) = reconstruct(&views, &rig, &ReconOptions::preset(preset), &mut recon_progress(&b))?;
+    let (mesh, recon) = reconstruct(&views, &ReconOptions::preset(preset), &mut recon_progress(&b))?;
     b.finish_with_message(format!("{} triangles", mesh.triangle_count()));
 
     let b = stage_bar(args.quiet, "texture")?;
     b.enable_steady_tick(std::time::Duration::from_millis(200));
     let t = Instant::now();
-    let textured = bake(&mesh, &views, &rig, &TextureOptions { size: args.texture_size, ..TextureOptions::default() })?;
+    let textured = bake(&mesh, &views, &TextureOptions::default().with_size(args.texture_size))?;
     let texture_seconds = t.elapsed().as_secs_f64();
     b.finish_with_message(format!("{0}×{0} atlas, {1} charts", args.texture_size, textured.report.atlas.charts));
 
@@ -109,7 +109,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     let result_views = w3d_raster::render_oracle_views(&textured.mesh, &rig, args.size)?;
     let (mut psnrs, mut ssims) = (Vec::new(), Vec::new());
     let mut sheet = vec![Vec::new(), Vec::new(), Vec::new(), Vec::new()];
-    for (input, result) in views.views.iter().zip(&result_views.views) {
+    for (input, result) in views.views().iter().zip(result_views.views()) {
         let (Some(ci), Some(cr)) = (&input.colour, &result.colour) else {
             return Err(Error::invalid("views", "colour images in the oracle views"));
         };

@@ -4,7 +4,7 @@
 
 use std::path::PathBuf;
 
-use w3d_core::{Image, Result, ViewRig, ViewSet};
+use w3d_core::{Image, Result, ViewSet};
 use w3d_diffusion::{CameraType, MultiViewPipeline, SampleOptions, prepare_input};
 
 use crate::progress::stage_bar;
@@ -50,10 +50,9 @@ pub struct GenerateArgs {
 
 /// The generated views (as a view set with its rig) and the preprocessed input image.
 pub struct Generated {
-    /// The 6 views: unit normals in the rig frame, colours, masks.
+    /// The 6 views (unit normals in the rig frame, colours, masks) with the rig of the
+    /// chosen camera type.
     pub views: ViewSet,
-    /// The rig of the chosen camera type.
-    pub rig: ViewRig,
     /// The conditioning image the model saw (white background, the model's resolution).
     pub input: Image,
 }
@@ -84,21 +83,21 @@ pub fn generate_views(image: &PathBuf, model: &ModelArgs, quiet: bool) -> Result
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
     let generated = pipeline.decode(latents, camera)?;
     bar.finish_and_clear();
-    let (views, rig) = generated.to_view_set()?;
-    Ok(Generated { views, rig, input })
+    let views = generated.to_view_set()?;
+    Ok(Generated { views, input })
 }
 
 /// Runs `wonder3d generate`: the view set plus `input.png` (the conditioning image).
 pub fn run(args: &GenerateArgs) -> Result<()> {
     let generated = generate_views(&args.image, &args.model, args.quiet)?;
-    generated.views.save(&args.out, &generated.rig)?;
+    generated.views.save(&args.out)?;
     generated.input.write_png(args.out.join("input.png"))?;
     println!(
         "generated {} views ({}×{}, {}) of {} -> {}",
-        generated.rig.len(),
+        generated.views.len(),
         generated.views.width(),
         generated.views.height(),
-        generated.rig.name,
+        generated.views.rig().name,
         args.image.display(),
         args.out.display()
     );

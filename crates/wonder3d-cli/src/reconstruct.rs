@@ -30,9 +30,9 @@ pub struct ReconstructArgs {
 /// Runs `wonder3d reconstruct`.
 pub fn run(args: &ReconstructArgs) -> Result<()> {
     let preset: Preset = args.preset.parse()?;
-    let (views, rig) = ViewSet::load(&args.views)?;
+    let views = ViewSet::load(&args.views)?;
     let bar = stage_bar(args.quiet, "reconstruct")?;
-    let (mesh, report) = reconstruct(&views, &rig, &ReconOptions::preset(preset), &mut recon_progress(&bar))?;
+    let (mesh, report) = reconstruct(&views, &ReconOptions::preset(preset), &mut recon_progress(&bar))?;
     bar.finish_and_clear();
     save_mesh(&args.out, &mesh)?;
     if let Some(path) = &args.report {

@@ -32,7 +32,7 @@ pub fn run(args: &RenderArgs) -> Result<()> {
         mesh.normalize_unit_cube();
     }
     let views = w3d_raster::render_oracle_views(&mesh, &rig, args.size)?;
-    views.save(&args.out, &rig)?;
+    views.save(&args.out)?;
     println!(
         "wrote {} views of {} ({}×{}) to {}",
         rig.len(),

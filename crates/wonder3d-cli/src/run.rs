@@ -38,17 +38,16 @@ pub fn run(args: &RunArgs) -> Result<()> {
     let preset: Preset = args.preset.parse()?;
     let generated = generate_views(&args.image, &args.model, args.quiet)?;
     if let Some(dir) = &args.views {
-        generated.views.save(dir, &generated.rig)?;
+        generated.views.save(dir)?;
         generated.input.write_png(dir.join("input.png"))?;
     }
     let bar = stage_bar(args.quiet, "reconstruct")?;
-    let (mesh, report) =
-        reconstruct(&generated.views, &generated.rig, &ReconOptions::preset(preset), &mut recon_progress(&bar))?;
+    let (mesh, report) = reconstruct(&generated.views, &ReconOptions::preset(preset), &mut recon_progress(&bar))?;
     bar.finish_and_clear();
     let bar = stage_bar(args.quiet, "texture")?;
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
-    let options = TextureOptions { size: args.texture_size, ..TextureOptions::default() };
-    let textured = bake(&mesh, &generated.views, &generated.rig, &options)?;
+    let options = TextureOptions::default().with_size(args.texture_size);
+    let textured = bake(&mesh, &generated.views, &options)?;
     bar.finish_and_clear();
     save_mesh(&args.out, &textured.mesh)?;
     println!(

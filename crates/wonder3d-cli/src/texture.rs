@@ -47,16 +47,14 @@ pub fn run(args: &TextureArgs) -> Result<()> {
     if args.normalize {
         mesh.normalize_unit_cube();
     }
-    let (views, rig) = ViewSet::load(&args.views)?;
-    let options = TextureOptions {
-        size: args.size,
-        padding: args.padding,
-        dilation: args.dilation,
-        view_weight_exponent: args.exponent,
-        ..TextureOptions::default()
-    };
+    let views = ViewSet::load(&args.views)?;
+    let options = TextureOptions::default()
+        .with_size(args.size)
+        .with_padding(args.padding)
+        .with_dilation(args.dilation)
+        .with_view_weight_exponent(args.exponent);
     if args.vertex_colours {
-        let fused = fuse_vertex_colours(&mesh, &views, &rig, &options)?;
+        let fused = fuse_vertex_colours(&mesh, &views, &options)?;
         save_mesh(&args.out, &fused.mesh)?;
         println!(
             "wrote {}: {} views, vertex colours, seen vertices {:.1} %",
@@ -71,7 +69,7 @@ pub fn run(args: &TextureArgs) -> Result<()> {
     spinner.enable_steady_tick(Duration::from_millis(120));
     let stages = 4;
     let mut step = 0;
-    let result = bake_with_progress(&mesh, &views, &rig, &options, &mut |stage| {
+    let result = bake_with_progress(&mesh, &views, &options, &mut |stage| {
         step += 1;
         let what = match stage {
             BakeStage::FusingVertexColours => "fusing vertex colours",

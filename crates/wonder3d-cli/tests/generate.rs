@@ -60,8 +60,8 @@ fn generate_writes_views_that_reconstruct_reads() {
         }
     }
     assert!(views.join("input.png").is_file());
-    let (set, rig) = w3d_core::ViewSet::load(&views).unwrap();
-    assert_eq!((rig.name.as_str(), set.width(), set.height()), ("wonder3d_persp", 32, 32));
+    let set = w3d_core::ViewSet::load(&views).unwrap();
+    assert_eq!((set.rig().name.as_str(), set.width(), set.height()), ("wonder3d_persp", 32, 32));
 
     let mesh = dir.path().join("mesh.obj");
     let run = wonder3d(&[

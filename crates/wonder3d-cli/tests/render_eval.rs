@@ -30,10 +30,10 @@ fn render_writes_a_view_set_that_loads_back() {
         out.to_str().unwrap(),
     ]);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    let (views, rig) = ViewSet::load(&out).unwrap();
-    assert_eq!(rig, ViewRig::wonder3d_persp());
+    let views = ViewSet::load(&out).unwrap();
+    assert_eq!(views.rig(), &ViewRig::wonder3d_persp());
     assert_eq!((views.width(), views.height()), (64, 64));
-    for v in &views.views {
+    for v in views.views() {
         let covered = v.mask.data().iter().filter(|&&m| m > 0.5).count();
         assert!(covered > 200, "{}: only {covered} foreground pixels", v.name);
         assert!(v.colour.is_some() && v.depth.is_some(), "{}", v.name);
