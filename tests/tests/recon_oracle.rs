@@ -13,12 +13,13 @@ fn spot_oracle_pipeline_reaches_the_accuracy_target() {
     let rig = ViewRig::wonder3d_ortho();
     let views = wonder3d::raster::render_oracle_views(&spot, &rig, 256).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    views.save(dir.path(), &rig).unwrap();
-    let (views, rig) = ViewSet::load(dir.path()).unwrap();
+    views.save(dir.path()).unwrap();
+    let views = ViewSet::load(dir.path()).unwrap();
+    assert_eq!(views.rig(), &rig);
 
     let mut events = Vec::new();
     let (mesh, report) =
-        reconstruct(&views, &rig, &ReconOptions::default(), &mut |p| events.push((p.stage, p.done))).unwrap();
+        reconstruct(&views, &ReconOptions::default(), &mut |p| events.push((p.stage, p.done))).unwrap();
     assert_eq!(report.init.choice, InitChoice::Poisson, "{}", report.init.reason);
     let coarse_steps = events.iter().filter(|(stage, _)| *stage == Stage::Coarse).map(|e| e.1).max();
     assert_eq!(coarse_steps, Some(ReconOptions::default().coarse.steps));
@@ -45,7 +46,7 @@ fn teapot_and_teacup_come_out_without_self_intersections() {
         truth.normalize_unit_cube();
         let rig = ViewRig::wonder3d_ortho();
         let views = wonder3d::raster::render_oracle_views(&truth, &rig, 256).unwrap();
-        let (mesh, report) = reconstruct(&views, &rig, &ReconOptions::default(), &mut |_| {}).unwrap();
+        let (mesh, report) = reconstruct(&views, &ReconOptions::default(), &mut |_| {}).unwrap();
         assert!(mesh.positions().iter().flatten().all(|x| x.is_finite()), "{name}");
         assert!(mesh.topology().is_watertight(), "{name}");
         assert_eq!(report.untangle.after, 0, "{name}: {:?}", report.untangle);

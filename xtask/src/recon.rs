@@ -60,15 +60,7 @@ fn load_normalised(dir: &Path, file: &str) -> Result<Mesh, String> {
 }
 
 /// Reconstructs `views` and scores the result against `truth`.
-fn score(
-    name: &str,
-    case: &str,
-    rig_name: &str,
-    truth: &Mesh,
-    views: &ViewSet,
-    rig: &ViewRig,
-    preset: Preset,
-) -> Result<Run, String> {
+fn score(name: &str, case: &str, rig_name: &str, truth: &Mesh, views: &ViewSet, preset: Preset) -> Result<Run, String> {
     let mut options = ReconOptions::preset(preset);
     // Development overrides: W3D_RECON_TUNE="steps=120,lo=0.02,sphere=1".
     if let Ok(tune) = std::env::var("W3D_RECON_TUNE") {
@@ -95,7 +87,7 @@ fn score(
         }
     }
     let t = Instant::now();
-    let result = reconstruct(views, rig, &options, &mut |_| {});
+    let result = reconstruct(views, &options, &mut |_| {});
     let seconds = t.elapsed().as_secs_f64();
     let (mesh, report) = match result {
         Ok(r) => r,
@@ -112,13 +104,13 @@ fn score(
     };
     if let Ok(dir) = std::env::var("W3D_RECON_SAVE") {
         let stem = format!("{dir}/{name}_{case}_{rig_name}_{preset}").replace([' ', '='], "_");
-        let (init, _) = wonder3d::recon::initial_mesh(views, rig, &options.init).map_err(|e| e.to_string())?;
+        let (init, _) = wonder3d::recon::initial_mesh(views, &options.init).map_err(|e| e.to_string())?;
         wonder3d::save_mesh(format!("{stem}_init.obj"), &init).map_err(|e| e.to_string())?;
         wonder3d::save_mesh(format!("{stem}.obj"), &mesh).map_err(|e| e.to_string())?;
     }
     // The loss the original mesh itself scores against the views: the floor of the view loss
     // (None where the original is not manifold, e.g. the cow's pinch vertex).
-    let truth_view_loss = wonder3d::recon::view_loss(views, rig, &truth.merge_by_position().0, &options.coarse).ok();
+    let truth_view_loss = wonder3d::recon::view_loss(views, &truth.merge_by_position().0, &options.coarse).ok();
     let nan = mesh.positions().iter().flatten().any(|v| !v.is_finite());
     let metrics = evaluate(&mesh, truth, &EvalOptions::default()).map_err(|e| e.to_string())?;
     let topo = mesh.topology();
@@ -164,8 +156,9 @@ fn score(
     Ok(Run { name: name.into(), case: case.into(), rig: rig_name.into(), preset, value })
 }
 
-/// Deterministic Gaussian noise (σ) added to the normal maps inside the masks, renormalised.
-fn add_normal_noise(views: &mut ViewSet, sigma: f32, seed: u64) {
+/// `views` with deterministic Gaussian noise (σ) added to the normal maps inside the masks,
+/// renormalised.
+fn with_normal_noise(views: ViewSet, sigma: f32, seed: u64) -> Result<ViewSet, String> {
     let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
     let mut uniform = move || {
         state ^= state << 13;
@@ -177,7 +170,8 @@ fn add_normal_noise(views: &mut ViewSet, sigma: f32, seed: u64) {
         let (u, v) = (uniform(), uniform());
         ((-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()) as f32
     };
-    for view in &mut views.views {
+    let (rig, mut images) = views.into_parts();
+    for view in &mut images {
         let mask = view.mask.data().to_vec();
         for (n, m) in view.normal.data_mut().chunks_exact_mut(3).zip(mask) {
             if m < 0.5 {
@@ -188,6 +182,7 @@ fn add_normal_noise(views: &mut ViewSet, sigma: f32, seed: u64) {
             n.copy_from_slice(&v.to_array());
         }
     }
+    ViewSet::new(rig, images).map_err(|e| e.to_string())
 }
 
 /// Mean PSNR and SSIM over the 16 SyncDreamer views of `ours` against `truth`, both rendered
@@ -198,7 +193,7 @@ fn novel_view_fidelity(truth: &Mesh, ours: &Mesh, size: u32) -> Result<(f64, f64
     let render = |mesh: &Mesh| -> Result<Vec<wonder3d::Image>, String> {
         let views = render_oracle_views(mesh, &rig, size).map_err(|e| e.to_string())?;
         views
-            .views
+            .views()
             .iter()
             .map(|v| {
                 let colour = v.colour.as_ref().ok_or("no colour view")?;
@@ -229,10 +224,10 @@ fn texture_cases(size: u32) -> Result<(), String> {
         truth.normalize_unit_cube();
         let views = render_oracle_views(&truth, &rig, size).map_err(|e| e.to_string())?;
         let options = ReconOptions::preset(Preset::Default);
-        let (mesh, report) = reconstruct(&views, &rig, &options, &mut |_| {}).map_err(|e| e.to_string())?;
+        let (mesh, report) = reconstruct(&views, &options, &mut |_| {}).map_err(|e| e.to_string())?;
         let texture = TextureOptions::default();
-        let ours = bake(&mesh, &views, &rig, &texture).map_err(|e| e.to_string())?;
-        let on_truth = bake(&truth.clone().without_attributes(), &views, &rig, &texture).map_err(|e| e.to_string())?;
+        let ours = bake(&mesh, &views, &texture).map_err(|e| e.to_string())?;
+        let on_truth = bake(&truth.clone().without_attributes(), &views, &texture).map_err(|e| e.to_string())?;
         let (psnr_recon, ssim_recon) = novel_view_fidelity(&truth, &ours.mesh, size)?;
         let (psnr_truth, ssim_truth) = novel_view_fidelity(&truth, &on_truth.mesh, size)?;
         let name = file.split('.').next().unwrap_or(file);
@@ -288,31 +283,31 @@ pub fn run(args: &[String]) -> Result<(), String> {
         let name = file.split('.').next().unwrap_or(file);
         let ortho_views = render_oracle_views(&truth, &ortho, size).map_err(|e| e.to_string())?;
         if cases.contains(&"ortho") {
-            runs.push(score(name, "oracle", "ortho", &truth, &ortho_views, &ortho, Preset::Default)?);
+            runs.push(score(name, "oracle", "ortho", &truth, &ortho_views, Preset::Default)?);
         }
         if cases.contains(&"persp") {
             let views = render_oracle_views(&truth, &persp, size).map_err(|e| e.to_string())?;
-            runs.push(score(name, "oracle", "persp", &truth, &views, &persp, Preset::Default)?);
+            runs.push(score(name, "oracle", "persp", &truth, &views, Preset::Default)?);
         }
         if cases.contains(&"presets") && PRESET_MESHES.contains(file) {
             for preset in [Preset::Fast, Preset::Quality] {
-                runs.push(score(name, "oracle", "ortho", &truth, &ortho_views, &ortho, preset)?);
+                runs.push(score(name, "oracle", "ortho", &truth, &ortho_views, preset)?);
             }
         }
         if cases.contains(&"stability") && (*file == "spot.obj" || *file == "bob_tri.obj") {
             for sigma in [0.05f32, 0.15] {
-                let mut views = ortho_views.clone();
-                add_normal_noise(&mut views, sigma, 7);
+                let views = with_normal_noise(ortho_views.clone(), sigma, 7)?;
                 let case = format!("noise σ={sigma}");
-                runs.push(score(name, &case, "ortho", &truth, &views, &ortho, Preset::Default)?);
+                runs.push(score(name, &case, "ortho", &truth, &views, Preset::Default)?);
             }
             // One view replaced by a wrong view: the left view shows the right view's images.
-            let mut views = ortho_views.clone();
+            let (rig, mut images) = ortho_views.clone().into_parts();
             let (right, left) = (2, 4);
-            let wrong = views.views[right].clone();
-            views.views[left].normal = wrong.normal;
-            views.views[left].mask = wrong.mask;
-            runs.push(score(name, "wrong view", "ortho", &truth, &views, &ortho, Preset::Default)?);
+            let wrong = images[right].clone();
+            images[left].normal = wrong.normal;
+            images[left].mask = wrong.mask;
+            let views = ViewSet::new(rig, images).map_err(|e| e.to_string())?;
+            runs.push(score(name, "wrong view", "ortho", &truth, &views, Preset::Default)?);
         }
     }
     if cases.contains(&"concave") {
@@ -328,7 +323,7 @@ pub fn run(args: &[String]) -> Result<(), String> {
                 name.push_str(" (opening to front)");
             }
             let views = render_oracle_views(&truth, &ortho, size).map_err(|e| e.to_string())?;
-            runs.push(score(&name, "concave", "ortho", &truth, &views, &ortho, Preset::Default)?);
+            runs.push(score(&name, "concave", "ortho", &truth, &views, Preset::Default)?);
         }
     }
     let out_dir = crate::target_dir().join("bench");

@@ -1,6 +1,6 @@
 //! Pinhole and orthographic cameras in the canonical frame.
 //!
-//! Conventions (see `docs/architecture.md`): the camera frame is OpenGL's — +x to the right of
+//! Conventions (see `docs/architecture.md`, "Conventions"): the camera frame is OpenGL's — +x to the right of
 //! the image, +y up, the camera looks along −z. Pixel coordinates are continuous with
 //! the origin at the top-left corner of the image, x to the right and y down, so the
 //! centre of pixel `(i, j)` (column `i`, row `j`) is at `(i + 0.5, j + 0.5)`.

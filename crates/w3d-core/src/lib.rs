@@ -15,7 +15,7 @@
 //! Everything here is plain data: slices of `[f32; 3]` positions and `[u32; 3]`
 //! counter-clockwise triangles, `[H][W][C]` row-major float images, and `glam` vectors for
 //! small math. The canonical frame is right-handed and y-up, with the input (front)
-//! camera on +z looking along −z (see `docs/architecture.md`, Conventions).
+//! camera on +z looking along −z (see `docs/architecture.md`, "Conventions").
 //!
 //! ```
 //! use w3d_core::{Mesh, ViewRig};

@@ -1,7 +1,7 @@
 //! Camera rigs: the Wonder3D 6-view rig and the SyncDreamer 16-view evaluation rig.
 //!
-//! Every crate takes its cameras from here (conventions in `docs/architecture.md`). Rigs are independent of
-//! image resolution; a [`crate::ViewSet`] carries the images.
+//! Every crate takes its cameras from here (`docs/architecture.md`, "Conventions"). Rigs are independent of
+//! image resolution; a [`crate::ViewSet`] pairs a rig with its images.
 
 #[cfg(feature = "io")]
 use std::io::Write as _;

@@ -18,10 +18,10 @@
 use std::path::Path;
 
 use crate::image::Image;
-use crate::rig::ViewRig;
+use crate::rig::{RigView, ViewRig};
 use crate::{Error, Result};
 
-/// The images of one view. All images of a view set share one size.
+/// The images of one view. All images of a [`ViewSet`] share one size.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ViewImages {
     /// View name (matches the rig's view name).
@@ -37,35 +37,39 @@ pub struct ViewImages {
     pub depth: Option<Image>,
 }
 
-/// One [`ViewImages`] per view of a rig, in rig order.
+/// A rig and one [`ViewImages`] per view of it, in rig order: the input of reconstruction
+/// and texturing.
+///
+/// The fields are private so that a `ViewSet` is valid by construction: [`ViewSet::new`]
+/// (and [`ViewSet::load`]) check the rig, the view names and every image's size and channel
+/// count once, and every consumer can rely on that without checking again. To change the
+/// images, take the set apart with [`ViewSet::into_parts`] and build a new one.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ViewSet {
-    /// The views.
-    pub views: Vec<ViewImages>,
+    rig: ViewRig,
+    views: Vec<ViewImages>,
 }
 
 impl ViewSet {
-    /// Image width in pixels (of the first view; [`ViewSet::validate`] checks the rest).
-    pub fn width(&self) -> u32 {
-        self.views.first().map_or(0, |v| v.mask.width())
-    }
-
-    /// Image height in pixels.
-    pub fn height(&self) -> u32 {
-        self.views.first().map_or(0, |v| v.mask.height())
-    }
-
-    /// Checks that the set matches `rig` (same count and names) and that every image has
-    /// the common size and the documented channel count.
-    pub fn validate(&self, rig: &ViewRig) -> Result<()> {
-        if self.views.len() != rig.views.len() {
+    /// Pairs `views` with `rig` after checking that:
+    /// - the rig is valid ([`ViewRig::validate`]; its errors are reported under `rig.`);
+    /// - there is one view per rig view, with the rig's names in rig order (`views[i].name`);
+    /// - every image has the size of the first view's mask, and the documented channel count:
+    ///   normal 3, mask 1, colour 3, depth 1 (`views[i].normal`, `views[i].mask`, …).
+    pub fn new(rig: ViewRig, views: Vec<ViewImages>) -> Result<ViewSet> {
+        rig.validate().map_err(|e| match e {
+            Error::Invalid { field, expected } => Error::invalid(format!("rig.{field}"), expected),
+            other => other,
+        })?;
+        if views.len() != rig.views.len() {
             return Err(Error::invalid(
                 "views",
-                format!("{} views to match the rig, got {}", rig.views.len(), self.views.len()),
+                format!("{} views to match the rig {:?}, got {}", rig.views.len(), rig.name, views.len()),
             ));
         }
-        let (w, h) = (self.width(), self.height());
-        for (i, (v, r)) in self.views.iter().zip(&rig.views).enumerate() {
+        // The rig has at least one view, so `views[0]` exists.
+        let (w, h) = (views[0].mask.width(), views[0].mask.height());
+        for (i, (v, r)) in views.iter().zip(&rig.views).enumerate() {
             if v.name != r.name {
                 return Err(Error::invalid(
                     format!("views[{i}].name"),
@@ -81,7 +85,48 @@ impl ViewSet {
                 d.expect_shape(&format!("views[{i}].depth"), w, h, 1)?;
             }
         }
-        Ok(())
+        Ok(ViewSet { rig, views })
+    }
+
+    /// The cameras the views were taken with.
+    pub fn rig(&self) -> &ViewRig {
+        &self.rig
+    }
+
+    /// The images, one per rig view, in rig order.
+    pub fn views(&self) -> &[ViewImages] {
+        &self.views
+    }
+
+    /// Number of views (at least one).
+    pub fn len(&self) -> usize {
+        self.views.len()
+    }
+
+    /// Always `false`: a valid set has at least one view (kept for the `len` convention).
+    pub fn is_empty(&self) -> bool {
+        self.views.is_empty()
+    }
+
+    /// Image width in pixels, common to every image of the set.
+    pub fn width(&self) -> u32 {
+        self.views[0].mask.width()
+    }
+
+    /// Image height in pixels, common to every image of the set.
+    pub fn height(&self) -> u32 {
+        self.views[0].mask.height()
+    }
+
+    /// Each view's camera (with its name) and images, in rig order.
+    pub fn iter(&self) -> impl ExactSizeIterator<Item = (&RigView, &ViewImages)> {
+        self.rig.views.iter().zip(&self.views)
+    }
+
+    /// The rig and the images, e.g. to change the images and build a new set with
+    /// [`ViewSet::new`] (which checks them again).
+    pub fn into_parts(self) -> (ViewRig, Vec<ViewImages>) {
+        (self.rig, self.views)
     }
 }
 
@@ -90,11 +135,10 @@ impl ViewSet {
 impl ViewSet {
     /// Writes the rig and every image into `dir` (created if needed), in the layout of
     /// the module documentation. Each file is written atomically.
-    pub fn save(&self, dir: impl AsRef<Path>, rig: &ViewRig) -> Result<()> {
+    pub fn save(&self, dir: impl AsRef<Path>) -> Result<()> {
         let dir = dir.as_ref();
-        self.validate(rig)?;
         std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-        rig.save_json(dir.join("cameras.json"))?;
+        self.rig.save_json(dir.join("cameras.json"))?;
         for v in &self.views {
             let n = v.normal.data();
             let m = v.mask.data();
@@ -117,8 +161,8 @@ impl ViewSet {
     }
 
     /// Reads a folder written by [`ViewSet::save`] (or by `wonder3d render` /
-    /// `wonder3d generate`), returning the view set and its rig.
-    pub fn load(dir: impl AsRef<Path>) -> Result<(ViewSet, ViewRig)> {
+    /// `wonder3d generate`), checked as by [`ViewSet::new`]; errors name the folder.
+    pub fn load(dir: impl AsRef<Path>) -> Result<ViewSet> {
         let dir = dir.as_ref();
         let rig = ViewRig::load_json(dir.join("cameras.json"))?;
         let mut views = Vec::with_capacity(rig.views.len());
@@ -162,9 +206,7 @@ impl ViewSet {
             };
             views.push(ViewImages { name: name.clone(), normal, colour, mask, depth });
         }
-        let set = ViewSet { views };
-        set.validate(&rig).map_err(|e| e.in_file(dir))?;
-        Ok((set, rig))
+        ViewSet::new(rig, views).map_err(|e| e.in_file(dir))
     }
 }
 

@@ -142,10 +142,65 @@ fn not_a_png_is_rejected() {
 #[test]
 fn view_set_with_mismatched_sizes_is_rejected() {
     let rig = ViewRig::wonder3d_ortho();
-    let mut set = oracle_like_set(&rig, 8);
-    set.views[3].mask = Image::filled(8, 7, 1, 1.0).unwrap();
-    let msg = set.validate(&rig).unwrap_err().to_string();
+    let mut views = oracle_like_views(&rig, 8);
+    views[3].mask = Image::filled(8, 7, 1, 1.0).unwrap();
+    let msg = ViewSet::new(rig.clone(), views).unwrap_err().to_string();
     assert!(msg.contains("views[3].mask") && msg.contains("8×8"), "{msg}");
+    // Channel counts: a 4-channel colour, a 3-channel depth.
+    let mut views = oracle_like_views(&rig, 8);
+    views[1].colour = Some(Image::filled(8, 8, 4, 0.5).unwrap());
+    let msg = ViewSet::new(rig.clone(), views).unwrap_err().to_string();
+    assert!(msg.contains("views[1].colour") && msg.contains("3 channels"), "{msg}");
+    let mut views = oracle_like_views(&rig, 8);
+    views[5].depth = Some(Image::filled(8, 8, 3, 1.0).unwrap());
+    let msg = ViewSet::new(rig.clone(), views).unwrap_err().to_string();
+    assert!(msg.contains("views[5].depth") && msg.contains("1 channels"), "{msg}");
+    let mut views = oracle_like_views(&rig, 8);
+    views[0].normal = Image::filled(8, 8, 1, 0.0).unwrap();
+    let msg = ViewSet::new(rig.clone(), views).unwrap_err().to_string();
+    assert!(msg.contains("views[0].normal"), "{msg}");
+    // The valid set passes and keeps its rig and size.
+    let set = ViewSet::new(rig.clone(), oracle_like_views(&rig, 8)).unwrap();
+    assert_eq!((set.len(), set.width(), set.height(), set.rig()), (6, 8, 8, &rig));
+    assert!(set.iter().all(|(camera, images)| camera.name == images.name));
+}
+
+#[test]
+fn view_set_must_match_its_rig() {
+    let rig = ViewRig::wonder3d_ortho();
+    // One view short.
+    let mut views = oracle_like_views(&rig, 4);
+    views.pop();
+    let msg = ViewSet::new(rig.clone(), views).unwrap_err().to_string();
+    assert!(msg.contains("6 views") && msg.contains("got 5"), "{msg}");
+    // Two views swapped: names must follow rig order.
+    let mut views = oracle_like_views(&rig, 4);
+    views.swap(1, 2);
+    let msg = ViewSet::new(rig.clone(), views).unwrap_err().to_string();
+    assert!(msg.contains("views[1].name") && msg.contains("\"front_right\""), "{msg}");
+    // An invalid rig is reported under `rig.`, and an empty one is refused.
+    let mut bad = rig.clone();
+    bad.views[4].name = "front".into();
+    let msg = ViewSet::new(bad.clone(), oracle_like_views(&bad, 4)).unwrap_err().to_string();
+    assert!(msg.contains("rig.views[4].name") && msg.contains("repeated"), "{msg}");
+    let empty = ViewRig { name: "empty".into(), views: vec![] };
+    let msg = ViewSet::new(empty, vec![]).unwrap_err().to_string();
+    assert!(msg.contains("at least one view"), "{msg}");
+    // Taken apart and rebuilt unchanged, the set is the same.
+    let set = ViewSet::new(rig.clone(), oracle_like_views(&rig, 4)).unwrap();
+    let (r, v) = set.clone().into_parts();
+    assert_eq!(ViewSet::new(r, v).unwrap(), set);
+}
+
+#[test]
+fn loading_a_mismatched_view_folder_names_the_folder_and_field() {
+    let rig = ViewRig::wonder3d_ortho();
+    let dir = tempfile::tempdir().unwrap();
+    ViewSet::new(rig.clone(), oracle_like_views(&rig, 8)).unwrap().save(dir.path()).unwrap();
+    // A mask of another size replaces one view's mask.
+    Image::filled(8, 6, 1, 1.0).unwrap().write_png(dir.path().join("mask_left.png")).unwrap();
+    let msg = message_for(ViewSet::load(dir.path()).unwrap_err(), dir.path());
+    assert!(msg.contains("views[4].mask") && msg.contains("8×8"), "{msg}");
 }
 
 #[test]
@@ -168,9 +223,8 @@ fn failed_write_leaves_no_file() {
     assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
 }
 
-fn oracle_like_set(rig: &ViewRig, size: u32) -> ViewSet {
-    let views = rig
-        .views
+fn oracle_like_views(rig: &ViewRig, size: u32) -> Vec<w3d_core::ViewImages> {
+    rig.views
         .iter()
         .map(|v| w3d_core::ViewImages {
             name: v.name.clone(),
@@ -179,6 +233,5 @@ fn oracle_like_set(rig: &ViewRig, size: u32) -> ViewSet {
             mask: Image::filled(size, size, 1, 0.0).unwrap(),
             depth: None,
         })
-        .collect();
-    ViewSet { views }
+        .collect()
 }

@@ -86,19 +86,19 @@ fn view_set_round_trips_through_png_and_exr() {
             }
         })
         .collect();
-    let set = ViewSet { views };
+    let set = ViewSet::new(rig.clone(), views).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    set.save(dir.path(), &rig).unwrap();
-    let (back, back_rig) = ViewSet::load(dir.path()).unwrap();
-    assert_eq!(back_rig, rig);
+    set.save(dir.path()).unwrap();
+    let back = ViewSet::load(dir.path()).unwrap();
+    assert_eq!(back.rig(), &rig);
     // EXR normals and depth are exact; masks and colours are 8-bit exact for these values.
     assert_eq!(back, set);
     // Without the EXR, the 8-bit PNG normals are within half a quantisation step.
     for v in &rig.views {
         std::fs::remove_file(dir.path().join(format!("normal_{}.exr", v.name))).unwrap();
     }
-    let (png, _) = ViewSet::load(dir.path()).unwrap();
-    for (a, b) in png.views.iter().zip(&set.views) {
+    let png = ViewSet::load(dir.path()).unwrap();
+    for (a, b) in png.views().iter().zip(set.views()) {
         for (x, y) in a.normal.data().iter().zip(b.normal.data()) {
             assert!((x - y).abs() <= 1.0 / 255.0 + 1e-6);
         }

@@ -242,12 +242,12 @@ pub struct GeneratedViews {
 }
 
 impl GeneratedViews {
-    /// The views as a [`ViewSet`] with the rig of their camera type: normals decoded to unit
-    /// vectors (`2·rgb − 1`, normalised; the input camera's frame is the canonical frame of
-    /// `DESIGN.md` §3, so no rotation), colours as generated, and masks that are 0 where both
-    /// images are background (every channel above [`BACKGROUND_THRESHOLD`]); normals are zero
-    /// on the background.
-    pub fn to_view_set(&self) -> Result<(ViewSet, ViewRig), Error> {
+    /// The views as a [`ViewSet`] carrying the rig of their camera type: normals decoded to
+    /// unit vectors (`2·rgb − 1`, normalised; the input camera's frame is the canonical frame
+    /// of `docs/architecture.md`, "Conventions", so no rotation), colours as generated, and
+    /// masks that are 0 where both images are background (every channel above
+    /// [`BACKGROUND_THRESHOLD`]); normals are zero on the background.
+    pub fn to_view_set(&self) -> Result<ViewSet, Error> {
         let rig = self.camera.rig();
         if self.normals.len() != rig.len() || self.colours.len() != rig.len() {
             return Err(Error::invalid(
@@ -287,7 +287,7 @@ impl GeneratedViews {
                 depth: None,
             });
         }
-        Ok((ViewSet { views }, rig))
+        ViewSet::new(rig, views)
     }
 }
 

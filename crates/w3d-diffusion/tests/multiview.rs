@@ -340,9 +340,9 @@ fn generated_views_become_a_view_set_in_the_rig_frame() {
         }
     }
     let views = GeneratedViews { camera: CameraType::Orthographic, normals: vec![normal; 6], colours: vec![colour; 6] };
-    let (set, rig) = views.to_view_set().unwrap();
-    assert_eq!(rig, CameraType::Orthographic.rig());
-    let v = &set.views[2];
+    let set = views.to_view_set().unwrap();
+    assert_eq!(set.rig(), &CameraType::Orthographic.rig());
+    let v = &set.views()[2];
     assert_eq!(v.name, "right");
     assert_eq!((v.mask.pixel(0, 0)[0], v.mask.pixel(7, 3)[0]), (1.0, 0.0));
     let got = v.normal.pixel(1, 1);
@@ -351,9 +351,10 @@ fn generated_views_become_a_view_set_in_the_rig_frame() {
     assert_eq!(v.normal.pixel(6, 1), &[0.0, 0.0, 0.0]);
     // The folder layout `wonder3d render` writes, read back by `ViewSet::load`.
     let dir = tempfile::tempdir().unwrap();
-    set.save(dir.path(), &rig).unwrap();
-    let (loaded, loaded_rig) = ViewSet::load(dir.path()).unwrap();
-    assert_eq!((loaded.views.len(), loaded_rig.name.as_str()), (6, "wonder3d_ortho"));
+    set.save(dir.path()).unwrap();
+    let loaded = ViewSet::load(dir.path()).unwrap();
+    assert_eq!((loaded.len(), loaded.rig().name.as_str()), (6, "wonder3d_ortho"));
+    assert_eq!(loaded.views()[2].mask, set.views()[2].mask);
 }
 
 /// Copies the tiny model directory into a temporary one.

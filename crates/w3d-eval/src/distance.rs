@@ -11,6 +11,7 @@ use crate::sampling::SurfaceSamples;
 /// Precision, recall and F-score at one distance threshold τ.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[non_exhaustive]
 pub struct FScore {
     /// Fraction of predicted points within τ of the ground truth.
     pub precision: f64,
@@ -24,6 +25,7 @@ pub struct FScore {
 /// surface samples, plus the normal agreement at those pairs. Distances are Euclidean
 /// (not squared), in the units of the samples.
 #[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
 pub struct SurfaceComparison {
     /// For each predicted point, the distance to the nearest ground-truth point.
     pub pred_to_gt: Vec<f32>,

@@ -13,6 +13,7 @@ use crate::sampling::sample_surface;
 
 /// Options of [`align_icp_scale`].
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
 pub struct IcpOptions {
     /// Surface samples per mesh (default 50 000).
     pub samples: usize,
@@ -28,6 +29,38 @@ pub struct IcpOptions {
 impl Default for IcpOptions {
     fn default() -> Self {
         IcpOptions { samples: 50_000, seed: 0, max_iterations: 100, tolerance: 1e-7 }
+    }
+}
+
+/// Chainable setters, one per field: `IcpOptions::default().with_…(…)` (the struct is
+/// `#[non_exhaustive]`, so code outside this crate cannot use struct-literal syntax).
+impl IcpOptions {
+    /// These options with [`samples`](Self::samples) set to `value`.
+    #[must_use]
+    pub fn with_samples(mut self, value: usize) -> Self {
+        self.samples = value;
+        self
+    }
+
+    /// These options with [`seed`](Self::seed) set to `value`.
+    #[must_use]
+    pub fn with_seed(mut self, value: u64) -> Self {
+        self.seed = value;
+        self
+    }
+
+    /// These options with [`max_iterations`](Self::max_iterations) set to `value`.
+    #[must_use]
+    pub fn with_max_iterations(mut self, value: usize) -> Self {
+        self.max_iterations = value;
+        self
+    }
+
+    /// These options with [`tolerance`](Self::tolerance) set to `value`.
+    #[must_use]
+    pub fn with_tolerance(mut self, value: f64) -> Self {
+        self.tolerance = value;
+        self
     }
 }
 

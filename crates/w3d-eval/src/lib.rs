@@ -2,7 +2,7 @@
 //! Chamfer distance, F-score, normal consistency and volume IoU between a predicted and a
 //! ground-truth [`Mesh`], and PSNR / SSIM between images.
 //!
-//! Geometry is compared in the canonical frame (y up, see `DESIGN.md` §3): the ground
+//! Geometry is compared in the canonical frame (y up, see `docs/architecture.md`, "Conventions"): the ground
 //! truth is normalised into the unit cube `[-0.5, 0.5]³`, the prediction is used as it is
 //! (optionally normalised too), and every distance is in those unit-cube units. Surface
 //! metrics come from seeded, area-weighted samples ([`sample_surface`]) matched with k-d
@@ -24,7 +24,7 @@
 //! let gt = tet(2.0)?; // normalised into the unit cube by `evaluate`
 //! let mut pred = tet(1.0)?;
 //! pred.map_positions(|p| p * 1.02 - 0.5)?; // the unit-cube tetrahedron, 2 % larger
-//! let metrics = evaluate(&pred, &gt, &EvalOptions { samples: 20_000, ..Default::default() })?;
+//! let metrics = evaluate(&pred, &gt, &EvalOptions::default().with_samples(20_000))?;
 //! assert!(metrics.chamfer < 0.01);
 //! assert!(metrics.iou_64 > 0.8 && metrics.normal_consistency > 0.9);
 //! let json = serde_json::to_string(&metrics).unwrap();
@@ -52,6 +52,7 @@ use w3d_core::{Error, Mesh, Result};
 
 /// Options of [`evaluate`].
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
 pub struct EvalOptions {
     /// Surface samples per mesh for Chamfer, F-score and normal consistency (default
     /// 100 000: the self-distance floor is about 0.002 there, against 0.004–0.007 at 10k).
@@ -70,10 +71,36 @@ impl Default for EvalOptions {
     }
 }
 
+/// Chainable setters, one per field: `EvalOptions::default().with_…(…)` (the struct is
+/// `#[non_exhaustive]`, so code outside this crate cannot use struct-literal syntax).
+impl EvalOptions {
+    /// These options with [`samples`](Self::samples) set to `value`.
+    #[must_use]
+    pub fn with_samples(mut self, value: usize) -> Self {
+        self.samples = value;
+        self
+    }
+
+    /// These options with [`seed`](Self::seed) set to `value`.
+    #[must_use]
+    pub fn with_seed(mut self, value: u64) -> Self {
+        self.seed = value;
+        self
+    }
+
+    /// These options with [`normalize_pred`](Self::normalize_pred) set to `value`.
+    #[must_use]
+    pub fn with_normalize_pred(mut self, value: bool) -> Self {
+        self.normalize_pred = value;
+        self
+    }
+}
+
 /// Every geometry metric of one prediction against one ground truth, in unit-cube units.
 /// Serialises to JSON with stable keys (`chamfer`, `fscore_0.01`, `iou_64`, …).
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[non_exhaustive]
 pub struct MeshMetrics {
     /// Chamfer distance `(mean d_pred→gt + mean d_gt→pred) / 2`, Euclidean, not squared.
     pub chamfer: f64,

@@ -11,6 +11,7 @@ use crate::distance::nearest;
 
 /// Options of [`visible_surface_chamfer`].
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
 pub struct VisibleOptions {
     /// Side of the square depth renders in pixels (SyncDreamer: 256; the rig's focal length
     /// scales with it, 280 px at 256).
@@ -25,9 +26,28 @@ impl Default for VisibleOptions {
     }
 }
 
+/// Chainable setters, one per field: `VisibleOptions::default().with_…(…)` (the struct is
+/// `#[non_exhaustive]`, so code outside this crate cannot use struct-literal syntax).
+impl VisibleOptions {
+    /// These options with [`size`](Self::size) set to `value`.
+    #[must_use]
+    pub fn with_size(mut self, value: u32) -> Self {
+        self.size = value;
+        self
+    }
+
+    /// These options with [`voxel`](Self::voxel) set to `value`.
+    #[must_use]
+    pub fn with_voxel(mut self, value: f32) -> Self {
+        self.voxel = value;
+        self
+    }
+}
+
 /// The visible-surface Chamfer distance and its parts, in world (unit-cube) units.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[non_exhaustive]
 pub struct VisibleChamfer {
     /// `(pred_to_gt + gt_to_pred) / 2`, Euclidean, not squared.
     pub chamfer: f64,

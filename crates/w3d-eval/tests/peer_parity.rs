@@ -154,7 +154,7 @@ fn self_distance_floor_at_100k_samples() {
 #[test]
 fn evaluate_normalises_serialises_and_rejects_bad_options() {
     let spot = load_mesh(shared_mesh("spot.obj")).unwrap();
-    let options = EvalOptions { samples: 2_000, seed: 5, normalize_pred: false };
+    let options = EvalOptions::default().with_samples(2_000).with_seed(5).with_normalize_pred(false);
     let mut unit = spot.clone();
     unit.normalize_unit_cube();
     let a = evaluate(&unit, &spot, &options).unwrap();
@@ -163,12 +163,12 @@ fn evaluate_normalises_serialises_and_rejects_bad_options() {
     let mut big = spot.clone();
     big.map_positions(|p| p * 3.0 + Vec3::new(1.0, -2.0, 0.5)).unwrap();
     let raw = evaluate(&big, &spot, &options).unwrap();
-    let normalised = evaluate(&big, &spot, &EvalOptions { normalize_pred: true, ..options }).unwrap();
+    let normalised = evaluate(&big, &spot, &options.with_normalize_pred(true)).unwrap();
     assert_eq!((normalised.samples, normalised.seed), (2_000, 5));
     assert!(raw.chamfer > 1.0 && raw.iou_64 < 0.2, "raw chamfer {}, iou {}", raw.chamfer, raw.iou_64);
     assert!((normalised.chamfer - a.chamfer).abs() < 1e-4, "{} vs {}", normalised.chamfer, a.chamfer);
     assert!(normalised.iou_64 > 0.999);
-    let e = evaluate(&spot, &spot, &EvalOptions { samples: 0, ..options }).unwrap_err().to_string();
+    let e = evaluate(&spot, &spot, &options.with_samples(0)).unwrap_err().to_string();
     assert!(e.contains("options.samples"), "{e}");
     assert_json_keys(&a);
 }

@@ -105,9 +105,9 @@ fn hidden_interior_parts_change_the_full_chamfer_but_not_the_visible_one() {
 #[test]
 fn visible_chamfer_rejects_bad_options_and_unseen_meshes() {
     let gt = spot();
-    let e = visible_surface_chamfer(&gt, &gt, &VisibleOptions { size: 0, ..Default::default() }).unwrap_err();
+    let e = visible_surface_chamfer(&gt, &gt, &VisibleOptions::default().with_size(0)).unwrap_err();
     assert!(e.to_string().contains("size"), "{e}");
-    let e = visible_surface_chamfer(&gt, &gt, &VisibleOptions { voxel: -1.0, ..Default::default() }).unwrap_err();
+    let e = visible_surface_chamfer(&gt, &gt, &VisibleOptions::default().with_voxel(-1.0)).unwrap_err();
     assert!(e.to_string().contains("voxel"), "{e}");
     // Behind every camera's near side: 10 units away, outside all 16 views.
     let far = boxes(&[(Vec3::splat(10.0), Vec3::splat(10.1))]);
@@ -124,7 +124,7 @@ fn icp_recovers_a_rotated_scaled_shifted_spot() {
         translation: DVec3::new(0.03, -0.02, 0.04),
     };
     let pred = truth.apply_to_mesh(&gt).unwrap();
-    let options = IcpOptions { samples: 20_000, ..Default::default() };
+    let options = IcpOptions::default().with_samples(20_000);
     let found = align_icp_scale(&pred, &gt, &options).unwrap();
     // found ∘ truth should be the identity.
     let rotation_error =
@@ -151,7 +151,7 @@ fn icp_recovers_a_rotated_scaled_shifted_spot() {
 fn icp_rejects_bad_options() {
     let gt = spot();
     let bad = |o: IcpOptions| align_icp_scale(&gt, &gt, &o).unwrap_err().to_string();
-    assert!(bad(IcpOptions { max_iterations: 0, ..Default::default() }).contains("max_iterations"));
-    assert!(bad(IcpOptions { tolerance: f64::NAN, ..Default::default() }).contains("tolerance"));
-    assert!(bad(IcpOptions { samples: 0, ..Default::default() }).contains("sample count"));
+    assert!(bad(IcpOptions::default().with_max_iterations(0)).contains("max_iterations"));
+    assert!(bad(IcpOptions::default().with_tolerance(f64::NAN)).contains("tolerance"));
+    assert!(bad(IcpOptions::default().with_samples(0)).contains("sample count"));
 }

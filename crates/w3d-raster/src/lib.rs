@@ -5,7 +5,7 @@
 //! backward pass on plain data, plus render helpers that draw normal / mask / depth /
 //! colour images of a [`w3d_core::Mesh`] through a whole [`w3d_core::ViewRig`].
 //!
-//! Conventions: positions are world coordinates of the canonical frame (`DESIGN.md` §3);
+//! Conventions: positions are world coordinates of the canonical frame (`docs/architecture.md`, "Conventions");
 //! images are row-major `[H][W][C]` with the origin top-left and pixel centres at `+0.5`,
 //! exactly as [`w3d_core::Camera::project`]; depth is the distance along the camera's
 //! viewing axis in world units. Backward functions take the loss gradient of their output

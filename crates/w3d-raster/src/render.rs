@@ -121,9 +121,9 @@ pub fn render_colours(mesh: &Mesh, rig: &ViewRig, size: u32) -> Result<Vec<Image
     rasterize_rig(mesh, rig, size)?.par_iter().map(|r| colour_image(mesh, r)).collect()
 }
 
-/// The oracle views of a mesh for `rig` at `size × size`: smooth world-space normals,
-/// colours (as [`render_colours`]), anti-aliased masks and depth, ready for
-/// [`ViewSet::save`]. The mesh is used as given (normalise it to the unit cube first for
+/// The oracle views of a mesh for `rig` at `size × size`, as a [`ViewSet`] owning a copy of
+/// `rig`: smooth world-space normals, colours (as [`render_colours`]), anti-aliased masks and
+/// depth, ready for [`ViewSet::save`]. The mesh is used as given (normalise it to the unit cube first for
 /// the canonical framing).
 pub fn render_oracle_views(mesh: &Mesh, rig: &ViewRig, size: u32) -> Result<ViewSet> {
     let normals = welded_vertex_normals(mesh);
@@ -142,7 +142,7 @@ pub fn render_oracle_views(mesh: &Mesh, rig: &ViewRig, size: u32) -> Result<View
             })
         })
         .collect::<Result<Vec<_>>>()?;
-    Ok(ViewSet { views })
+    ViewSet::new(rig.clone(), views)
 }
 
 #[cfg(test)]
@@ -161,8 +161,8 @@ mod tests {
         let mesh = tetra();
         let rig = ViewRig::wonder3d_ortho();
         let set = render_oracle_views(&mesh, &rig, 32).unwrap();
-        set.validate(&rig).unwrap();
-        for v in &set.views {
+        assert_eq!((set.rig(), set.len(), set.width(), set.height()), (&rig, 6, 32, 32));
+        for v in set.views() {
             let depth = v.depth.as_ref().unwrap().data();
             let colour = v.colour.as_ref().unwrap().data();
             let mut covered = 0;
@@ -181,13 +181,13 @@ mod tests {
             assert!(v.mask.data().iter().all(|&m| (0.0..=1.0).contains(&m)));
         }
         // The front view sees the face with normal +z-ish in the middle.
-        let front = &set.views[0];
+        let front = &set.views()[0];
         let mid = front.normal.pixel(12, 20);
         assert!(mid[2] > 0.3, "{mid:?}");
         assert_eq!(render_normals(&mesh, &rig, 32, NormalMode::Smooth).unwrap()[0], front.normal);
-        assert_eq!(render_mask(&mesh, &rig, 32).unwrap()[2], set.views[2].mask);
-        assert_eq!(&render_depth(&mesh, &rig, 32).unwrap()[3], set.views[3].depth.as_ref().unwrap());
-        assert_eq!(&render_colours(&mesh, &rig, 32).unwrap()[5], set.views[5].colour.as_ref().unwrap());
+        assert_eq!(render_mask(&mesh, &rig, 32).unwrap()[2], set.views()[2].mask);
+        assert_eq!(&render_depth(&mesh, &rig, 32).unwrap()[3], set.views()[3].depth.as_ref().unwrap());
+        assert_eq!(&render_colours(&mesh, &rig, 32).unwrap()[5], set.views()[5].colour.as_ref().unwrap());
         let flat = render_normals(&mesh, &rig, 32, NormalMode::Flat).unwrap();
         assert_ne!(flat[0], front.normal);
     }

@@ -130,7 +130,7 @@ fn results_do_not_depend_on_the_thread_count() {
             bytes.extend(r.triangle.iter().flat_map(|t| t.to_le_bytes()));
         }
         let mesh = Mesh::new(p.clone(), tris.clone()).unwrap();
-        for v in render_oracle_views(&mesh, &rig, 64).unwrap().views {
+        for v in render_oracle_views(&mesh, &rig, 64).unwrap().views() {
             bytes.extend(v.normal.data().iter().chain(v.mask.data()).flat_map(|x| x.to_le_bytes()));
         }
         bytes

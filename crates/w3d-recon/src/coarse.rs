@@ -37,6 +37,7 @@ use crate::normals::{vertex_normals, vertex_normals_backward};
 
 /// Options of [`reconstruct_coarse`]. Lengths are in world (unit-cube) units.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
 pub struct CoarseOptions {
     /// Optimisation steps (one render, one step, one remesh each).
     pub steps: usize,
@@ -80,9 +81,84 @@ impl Default for CoarseOptions {
     }
 }
 
+/// Chainable setters, one per field: `CoarseOptions::default().with_…(…)` (the struct is
+/// `#[non_exhaustive]`, so code outside this crate cannot use struct-literal syntax).
+impl CoarseOptions {
+    /// These options with [`steps`](Self::steps) set to `value`.
+    #[must_use]
+    pub fn with_steps(mut self, value: usize) -> Self {
+        self.steps = value;
+        self
+    }
+
+    /// These options with [`lr`](Self::lr) set to `value`.
+    #[must_use]
+    pub fn with_lr(mut self, value: f32) -> Self {
+        self.lr = value;
+        self
+    }
+
+    /// These options with [`lr_decay`](Self::lr_decay) set to `value`.
+    #[must_use]
+    pub fn with_lr_decay(mut self, value: f32) -> Self {
+        self.lr_decay = value;
+        self
+    }
+
+    /// These options with [`edge_len_lims`](Self::edge_len_lims) set to `value`.
+    #[must_use]
+    pub fn with_edge_len_lims(mut self, value: (f32, f32)) -> Self {
+        self.edge_len_lims = value;
+        self
+    }
+
+    /// These options with [`min_edge_pixels`](Self::min_edge_pixels) set to `value`.
+    #[must_use]
+    pub fn with_min_edge_pixels(mut self, value: f32) -> Self {
+        self.min_edge_pixels = value;
+        self
+    }
+
+    /// These options with [`laplacian_weight`](Self::laplacian_weight) set to `value`.
+    #[must_use]
+    pub fn with_laplacian_weight(mut self, value: f32) -> Self {
+        self.laplacian_weight = value;
+        self
+    }
+
+    /// These options with [`normal_weight`](Self::normal_weight) set to `value`.
+    #[must_use]
+    pub fn with_normal_weight(mut self, value: f32) -> Self {
+        self.normal_weight = value;
+        self
+    }
+
+    /// These options with [`mask_weight`](Self::mask_weight) set to `value`.
+    #[must_use]
+    pub fn with_mask_weight(mut self, value: f32) -> Self {
+        self.mask_weight = value;
+        self
+    }
+
+    /// These options with [`grazing_epsilon`](Self::grazing_epsilon) set to `value`.
+    #[must_use]
+    pub fn with_grazing_epsilon(mut self, value: f32) -> Self {
+        self.grazing_epsilon = value;
+        self
+    }
+
+    /// These options with [`seed`](Self::seed) set to `value`.
+    #[must_use]
+    pub fn with_seed(mut self, value: u64) -> Self {
+        self.seed = value;
+        self
+    }
+}
+
 /// What [`reconstruct_coarse`] did.
 #[derive(Debug, Clone, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[non_exhaustive]
 pub struct CoarseReport {
     /// Total loss before each step.
     pub losses: Vec<f32>,
@@ -95,11 +171,10 @@ pub struct CoarseReport {
 /// An icosphere centred at the origin whose radius is half the largest silhouette extent
 /// seen in any view (orthographic rigs: the mask bounding box in world units), a start
 /// mesh that encloses roughly the same region as the object.
-pub fn silhouette_sphere(views: &ViewSet, rig: &ViewRig, subdivisions: u32) -> Result<Mesh> {
-    views.validate(rig)?;
+pub fn silhouette_sphere(views: &ViewSet, subdivisions: u32) -> Result<Mesh> {
     let (w, h) = (views.width(), views.height());
     let mut extent = 0.0f32;
-    for (v, rv) in views.views.iter().zip(&rig.views) {
+    for (rv, v) in views.iter() {
         let (mut lo, mut hi) = ((u32::MAX, u32::MAX), (0u32, 0u32));
         for y in 0..h {
             for x in 0..w {
@@ -135,16 +210,14 @@ fn finest_view_span(cameras: &[Camera], p: glam::Vec3) -> f32 {
 }
 
 /// Fits `init` (a closed mesh in the rig's world frame) to the normal maps and masks of
-/// `views` and returns the fitted mesh with a report. `progress` is called after every
+/// `views` (through their rig) and returns the fitted mesh with a report. `progress` is called after every
 /// step with `(steps done, steps in all, loss before the step)`.
 pub fn reconstruct_coarse(
     views: &ViewSet,
-    rig: &ViewRig,
     init: &Mesh,
     options: &CoarseOptions,
     progress: &mut dyn FnMut(usize, usize, f32),
 ) -> Result<(Mesh, CoarseReport)> {
-    views.validate(rig)?;
     let start = Instant::now();
     let size = views.width();
     if views.height() != size {
@@ -155,23 +228,21 @@ pub fn reconstruct_coarse(
     // towards the views. Measured (ortho, default preset, armadillo / cow / plane / horse):
     // CD 0.0035 / 0.0035 / 0.0044 / 0.0030 without them, 0.0069 / 0.0091 / 0.0364 / 0.0158
     // with all three; `untangle` removes the crossings they would have prevented.
-    let remesh = RemeshOptions {
-        edge_floor_passes: 0,
-        fold_relaxation_rounds: 0,
-        remove_valence3: false,
-        lr: options.lr,
-        edge_len_lims: options.edge_len_lims,
-        laplacian_weight: options.laplacian_weight,
-        seed: options.seed,
-        ..Default::default()
-    };
+    let remesh = RemeshOptions::default()
+        .with_edge_floor_passes(0)
+        .with_fold_relaxation_rounds(0)
+        .with_remove_valence3(false)
+        .with_lr(options.lr)
+        .with_edge_len_lims(options.edge_len_lims)
+        .with_laplacian_weight(options.laplacian_weight)
+        .with_seed(options.seed);
     let mut opt = MeshOptimizer::from_mesh(&init.clone().without_attributes(), remesh)?;
     if options.min_edge_pixels > 0.0 {
-        let cameras: Vec<Camera> = rig.cameras().copied().collect();
+        let cameras: Vec<Camera> = views.rig().cameras().copied().collect();
         let scale = options.min_edge_pixels / size as f32;
         opt.set_min_edge_length_field(move |p| scale * finest_view_span(&cameras, glam::Vec3::from(p)));
     }
-    let fit = ViewFit::new(views, rig, options)?;
+    let fit = ViewFit::new(views, options)?;
     let mut report = CoarseReport { losses: Vec::new(), triangle_counts: Vec::new(), seconds: 0.0 };
     let mut lr = options.lr;
     for _ in 0..options.steps {
@@ -197,8 +268,8 @@ pub fn reconstruct_coarse(
 /// views) of `mesh` against `views`: how far its renders are from the views. Near 0 for
 /// the mesh the views were rendered from (about 0.0005 or less on the oracle meshes); the
 /// mesh must be manifold.
-pub fn view_loss(views: &ViewSet, rig: &ViewRig, mesh: &Mesh, options: &CoarseOptions) -> Result<f32> {
-    Ok(ViewFit::new(views, rig, options)?.loss_and_gradient(mesh.positions(), mesh.triangles())?.0)
+pub fn view_loss(views: &ViewSet, mesh: &Mesh, options: &CoarseOptions) -> Result<f32> {
+    Ok(ViewFit::new(views, options)?.loss_and_gradient(mesh.positions(), mesh.triangles())?.0)
 }
 
 /// The coarse stage's loss against one view set: per view, the target normals, mask and
@@ -213,18 +284,15 @@ pub(crate) struct ViewFit<'a> {
 }
 
 impl<'a> ViewFit<'a> {
-    /// Precomputes the targets of `views` (square images, validated against `rig`).
-    pub(crate) fn new(views: &ViewSet, rig: &'a ViewRig, options: &CoarseOptions) -> Result<Self> {
-        views.validate(rig)?;
+    /// Precomputes the targets of `views` (square images).
+    pub(crate) fn new(views: &'a ViewSet, options: &CoarseOptions) -> Result<Self> {
         let size = views.width();
         if views.height() != size {
             return Err(Error::invalid("views", format!("square images, got {}×{}", size, views.height())));
         }
         let targets = views
-            .views
             .iter()
-            .zip(&rig.views)
-            .map(|(v, rv)| {
+            .map(|(rv, v)| {
                 let weight = v
                     .normal
                     .data()
@@ -238,7 +306,13 @@ impl<'a> ViewFit<'a> {
                 (v.normal.data().to_vec(), v.mask.data().to_vec(), weight)
             })
             .collect();
-        Ok(ViewFit { rig, size, normal_weight: options.normal_weight, mask_weight: options.mask_weight, targets })
+        Ok(ViewFit {
+            rig: views.rig(),
+            size,
+            normal_weight: options.normal_weight,
+            mask_weight: options.mask_weight,
+            targets,
+        })
     }
 
     /// The total loss of the mesh `positions` / `triangles` over all views and its gradient

@@ -35,7 +35,7 @@ use std::time::Instant;
 
 use glam::Vec3;
 use rayon::prelude::*;
-use w3d_core::{Camera, Error, Image, Mesh, Projection, Result, ViewRig, ViewSet};
+use w3d_core::{Camera, Error, Image, Mesh, Projection, Result, ViewSet};
 use w3d_raster::rasterize_rig;
 use w3d_remesh::{MeshOptimizer, RemeshOptions};
 
@@ -49,6 +49,7 @@ const CONCAVE_LEAN: f32 = 0.1;
 
 /// Options of [`initial_mesh`]. Lengths are in world (unit-cube) units.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
 pub struct InitOptions {
     /// Cells per axis of the Poisson grid over `[-extent, extent]³`.
     pub grid: usize,
@@ -86,6 +87,66 @@ impl Default for InitOptions {
     }
 }
 
+/// Chainable setters, one per field: `InitOptions::default().with_…(…)` (the struct is
+/// `#[non_exhaustive]`, so code outside this crate cannot use struct-literal syntax).
+impl InitOptions {
+    /// These options with [`grid`](Self::grid) set to `value`.
+    #[must_use]
+    pub fn with_grid(mut self, value: usize) -> Self {
+        self.grid = value;
+        self
+    }
+
+    /// These options with [`extent`](Self::extent) set to `value`.
+    #[must_use]
+    pub fn with_extent(mut self, value: f32) -> Self {
+        self.extent = value;
+        self
+    }
+
+    /// These options with [`screening`](Self::screening) set to `value`.
+    #[must_use]
+    pub fn with_screening(mut self, value: f64) -> Self {
+        self.screening = value;
+        self
+    }
+
+    /// These options with [`edge_length`](Self::edge_length) set to `value`.
+    #[must_use]
+    pub fn with_edge_length(mut self, value: f32) -> Self {
+        self.edge_length = value;
+        self
+    }
+
+    /// These options with [`concave_margin`](Self::concave_margin) set to `value`.
+    #[must_use]
+    pub fn with_concave_margin(mut self, value: f32) -> Self {
+        self.concave_margin = value;
+        self
+    }
+
+    /// These options with [`smoothing_iterations`](Self::smoothing_iterations) set to `value`.
+    #[must_use]
+    pub fn with_smoothing_iterations(mut self, value: usize) -> Self {
+        self.smoothing_iterations = value;
+        self
+    }
+
+    /// These options with [`force_sphere`](Self::force_sphere) set to `value`.
+    #[must_use]
+    pub fn with_force_sphere(mut self, value: bool) -> Self {
+        self.force_sphere = value;
+        self
+    }
+
+    /// These options with [`hull_alternative_iou`](Self::hull_alternative_iou) set to `value`.
+    #[must_use]
+    pub fn with_hull_alternative_iou(mut self, value: f32) -> Self {
+        self.hull_alternative_iou = value;
+        self
+    }
+}
+
 /// Which start mesh [`initial_mesh`] chose.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
@@ -104,6 +165,7 @@ pub enum InitChoice {
 /// What [`initial_mesh`] did and why.
 #[derive(Debug, Clone, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[non_exhaustive]
 pub struct InitReport {
     /// The start mesh that was used.
     pub choice: InitChoice,
@@ -126,8 +188,8 @@ pub struct InitReport {
 /// carved by the visual hull, or a silhouette-sized sphere when the concave check fires
 /// (see the module docs). Needs views named `front` and `back` in the rig for the Poisson
 /// path; without them it falls back to the sphere and says so in the report.
-pub fn initial_mesh(views: &ViewSet, rig: &ViewRig, options: &InitOptions) -> Result<(Mesh, InitReport)> {
-    let (mesh, report, _) = start_meshes(views, rig, options, false)?;
+pub fn initial_mesh(views: &ViewSet, options: &InitOptions) -> Result<(Mesh, InitReport)> {
+    let (mesh, report, _) = start_meshes(views, options, false)?;
     Ok((mesh, report))
 }
 
@@ -136,11 +198,10 @@ pub fn initial_mesh(views: &ViewSet, rig: &ViewRig, options: &InitOptions) -> Re
 /// is below [`InitOptions::hull_alternative_iou`].
 pub(crate) fn start_meshes(
     views: &ViewSet,
-    rig: &ViewRig,
     options: &InitOptions,
     want_alternative: bool,
 ) -> Result<(Mesh, InitReport, Option<Mesh>)> {
-    views.validate(rig)?;
+    let rig = views.rig();
     if options.grid < 8 || options.grid > 512 {
         return Err(Error::invalid("InitOptions::grid", format!("8 to 512 cells, got {}", options.grid)));
     }
@@ -149,7 +210,7 @@ pub(crate) fn start_meshes(
     }
     let start = Instant::now();
     let sphere = |reason: String, front: Option<f32>, back: Option<f32>| -> Result<(Mesh, InitReport, Option<Mesh>)> {
-        let mesh = silhouette_sphere(views, rig, 3)?;
+        let mesh = silhouette_sphere(views, 3)?;
         let report = InitReport {
             choice: InitChoice::Sphere,
             reason,
@@ -170,14 +231,14 @@ pub(crate) fn start_meshes(
     };
     let (w, h) = (views.width(), views.height());
     let grid = Grid::new(options.grid, options.extent);
-    let hull = visual_hull(&grid, views, rig);
+    let hull = visual_hull(&grid, views);
     let mut points = Vec::new();
     let mut concavity = [0.0f32; 2];
     let mut lean = [0.0f32; 2];
     for v in [front, back] {
         let true_camera = rig.views[v].camera;
         let camera = weak_perspective(&true_camera);
-        let view = &views.views[v];
+        let view = &views.views()[v];
         let anchor = hull_entry_depth(&grid, &hull, &true_camera, &view.mask)?;
         let depth =
             integrate_normals_anchored(&view.normal, &view.mask, &camera, Some(&anchor), &IntegrateOptions::default())?;
@@ -212,7 +273,7 @@ pub(crate) fn start_meshes(
         return sphere(format!("Poisson + hull gave an empty surface ({numbers}): sphere start"), Some(fc), Some(bc));
     };
     let mesh = taubin_smooth(&simplify(&mesh, options.edge_length)?, options.smoothing_iterations)?;
-    let (worst_iou, worst_view) = silhouette_agreement(&mesh, views, rig)?;
+    let (worst_iou, worst_view) = silhouette_agreement(&mesh, views)?;
     let alternative = if want_alternative && worst_iou < options.hull_alternative_iou {
         Some(hull_mesh(&grid, &hull, options)?)
     } else {
@@ -238,10 +299,9 @@ pub(crate) fn start_meshes(
 /// is the alternative start where front and back do not show how far the object extends
 /// along their axis (a handle pointing at the camera hides behind its head, with a depth
 /// step that integration cannot see).
-pub fn visual_hull_mesh(views: &ViewSet, rig: &ViewRig, options: &InitOptions) -> Result<Mesh> {
-    views.validate(rig)?;
+pub fn visual_hull_mesh(views: &ViewSet, options: &InitOptions) -> Result<Mesh> {
     let grid = Grid::new(options.grid, options.extent);
-    hull_mesh(&grid, &visual_hull(&grid, views, rig), options)
+    hull_mesh(&grid, &visual_hull(&grid, views), options)
 }
 
 /// The surface of a [`visual_hull`] field, simplified and smoothed as the start meshes are.
@@ -255,14 +315,14 @@ fn hull_mesh(grid: &Grid, hull: &[f32], options: &InitOptions) -> Result<Mesh> {
 
 /// The smallest silhouette IoU of `mesh` over the rig's views (the mesh's pixel-centre
 /// coverage against the views' masks thresholded at 0.5) and the name of that view.
-fn silhouette_agreement(mesh: &Mesh, views: &ViewSet, rig: &ViewRig) -> Result<(f32, String)> {
+fn silhouette_agreement(mesh: &Mesh, views: &ViewSet) -> Result<(f32, String)> {
     let (w, h) = (views.width(), views.height());
     if w != h {
         return Err(Error::invalid("views", format!("square images for the silhouette check, got {w}×{h}")));
     }
-    let rasters = rasterize_rig(mesh, rig, w)?;
+    let rasters = rasterize_rig(mesh, views.rig(), w)?;
     let mut worst = (f32::INFINITY, String::new());
-    for ((raster, view), rv) in rasters.iter().zip(&views.views).zip(&rig.views) {
+    for (raster, (rv, view)) in rasters.iter().zip(views.iter()) {
         let (mut both, mut either) = (0usize, 0usize);
         for (&a, &b) in raster.coverage().iter().zip(view.mask.data()) {
             both += usize::from(a >= 0.5 && b >= 0.5);
@@ -554,7 +614,7 @@ fn screened_poisson(grid: &Grid, points: &[OrientedPoint], screening: f64) -> Ve
 
 /// Per grid node, the smallest mask value over the views (bilinear; 0 outside an image):
 /// above 0.5 inside the visual hull.
-fn visual_hull(grid: &Grid, views: &ViewSet, rig: &ViewRig) -> Vec<f32> {
+fn visual_hull(grid: &Grid, views: &ViewSet) -> Vec<f32> {
     let n = grid.nodes_per_axis();
     let (w, h) = (views.width(), views.height());
     let mut hull = vec![0.0f32; n * n * n];
@@ -563,7 +623,7 @@ fn visual_hull(grid: &Grid, views: &ViewSet, rig: &ViewRig) -> Vec<f32> {
             for i in 0..n {
                 let p = grid.position(i, j, k);
                 let mut m = 1.0f32;
-                for (view, rv) in views.views.iter().zip(&rig.views) {
+                for (rv, view) in views.iter() {
                     let q = rv.camera.project(p, w, h);
                     m = m.min(bilinear(&view.mask, q.x - 0.5, q.y - 0.5));
                     if m < 0.5 {
@@ -802,13 +862,11 @@ fn taubin_smooth(mesh: &Mesh, iterations: usize) -> Result<Mesh> {
 /// collapse / split / flip passes (no optimisation steps).
 fn simplify(mesh: &Mesh, edge_length: f32) -> Result<Mesh> {
     // The reference passes only (see `reconstruct_coarse` for why the repairs are off).
-    let options = RemeshOptions {
-        edge_len_lims: (edge_length, edge_length),
-        edge_floor_passes: 0,
-        fold_relaxation_rounds: 0,
-        remove_valence3: false,
-        ..RemeshOptions::default()
-    };
+    let options = RemeshOptions::default()
+        .with_edge_len_lims((edge_length, edge_length))
+        .with_edge_floor_passes(0)
+        .with_fold_relaxation_rounds(0)
+        .with_remove_valence3(false);
     let mut opt = MeshOptimizer::from_mesh(mesh, options)?;
     for _ in 0..8 {
         let lengths = vec![edge_length; opt.vertex_count()];

@@ -27,6 +27,7 @@ use w3d_core::{Camera, Error, Image, Projection, Result};
 
 /// Options of [`integrate_normals`].
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
 pub struct IntegrateOptions {
     /// Weight of the silhouette anchor equations relative to the gradient equations.
     pub boundary_weight: f64,
@@ -41,6 +42,38 @@ pub struct IntegrateOptions {
 impl Default for IntegrateOptions {
     fn default() -> Self {
         IntegrateOptions { boundary_weight: 0.1, mask_threshold: 0.5, max_iterations: 4000, tolerance: 1e-8 }
+    }
+}
+
+/// Chainable setters, one per field: `IntegrateOptions::default().with_…(…)` (the struct is
+/// `#[non_exhaustive]`, so code outside this crate cannot use struct-literal syntax).
+impl IntegrateOptions {
+    /// These options with [`boundary_weight`](Self::boundary_weight) set to `value`.
+    #[must_use]
+    pub fn with_boundary_weight(mut self, value: f64) -> Self {
+        self.boundary_weight = value;
+        self
+    }
+
+    /// These options with [`mask_threshold`](Self::mask_threshold) set to `value`.
+    #[must_use]
+    pub fn with_mask_threshold(mut self, value: f32) -> Self {
+        self.mask_threshold = value;
+        self
+    }
+
+    /// These options with [`max_iterations`](Self::max_iterations) set to `value`.
+    #[must_use]
+    pub fn with_max_iterations(mut self, value: usize) -> Self {
+        self.max_iterations = value;
+        self
+    }
+
+    /// These options with [`tolerance`](Self::tolerance) set to `value`.
+    #[must_use]
+    pub fn with_tolerance(mut self, value: f64) -> Self {
+        self.tolerance = value;
+        self
     }
 }
 

@@ -27,9 +27,9 @@
 //! let truth = w3d_remesh::icosphere(4, 0.35)?;
 //! let rig = ViewRig::wonder3d_ortho();
 //! let views = w3d_raster::render_oracle_views(&truth, &rig, 64)?;
-//! let mut options = ReconOptions::preset(Preset::Fast);
-//! options.coarse.steps = 20;
-//! let (mesh, report) = reconstruct(&views, &rig, &options, &mut |_| {})?;
+//! // Options are `#[non_exhaustive]`: start from a preset (or `Default`) and chain setters.
+//! let options = ReconOptions::preset(Preset::Fast).with_coarse_steps(20);
+//! let (mesh, report) = reconstruct(&views, &options, &mut |_| {})?;
 //! assert!(mesh.topology().is_watertight());
 //! let radius = mesh.positions().iter().map(|p| glam::Vec3::from(*p).length()).sum::<f32>()
 //!     / mesh.vertex_count() as f32;

@@ -5,7 +5,7 @@ use std::fmt;
 use std::str::FromStr;
 use std::time::Instant;
 
-use w3d_core::{Error, Mesh, Result, ViewRig, ViewSet};
+use w3d_core::{Error, Mesh, Result, ViewSet};
 
 use crate::coarse::{CoarseOptions, CoarseReport, reconstruct_coarse};
 use crate::init::{InitChoice, InitOptions, InitReport, start_meshes};
@@ -58,6 +58,7 @@ impl FromStr for Preset {
 
 /// Options of [`reconstruct`]: one block per stage.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
 pub struct ReconOptions {
     /// The start mesh.
     pub init: InitOptions,
@@ -102,6 +103,54 @@ impl Default for ReconOptions {
     }
 }
 
+/// Chainable setters, one per field: `ReconOptions::default().with_…(…)` (the struct is
+/// `#[non_exhaustive]`, so code outside this crate cannot use struct-literal syntax).
+impl ReconOptions {
+    /// These options with [`init`](Self::init) set to `value`.
+    #[must_use]
+    pub fn with_init(mut self, value: InitOptions) -> Self {
+        self.init = value;
+        self
+    }
+
+    /// These options with [`coarse`](Self::coarse) set to `value`.
+    #[must_use]
+    pub fn with_coarse(mut self, value: CoarseOptions) -> Self {
+        self.coarse = value;
+        self
+    }
+
+    /// These options with [`untangle_rounds`](Self::untangle_rounds) set to `value`.
+    #[must_use]
+    pub fn with_untangle_rounds(mut self, value: usize) -> Self {
+        self.untangle_rounds = value;
+        self
+    }
+
+    /// These options with [`polish_steps`](Self::polish_steps) set to `value`.
+    #[must_use]
+    pub fn with_polish_steps(mut self, value: usize) -> Self {
+        self.polish_steps = value;
+        self
+    }
+
+    /// These options with the coarse stage's step count ([`CoarseOptions::steps`]) set to
+    /// `steps`: the main speed/accuracy knob after the preset.
+    #[must_use]
+    pub fn with_coarse_steps(mut self, steps: usize) -> Self {
+        self.coarse.steps = steps;
+        self
+    }
+
+    /// These options with the seed of the remesher's random choices ([`CoarseOptions::seed`])
+    /// set to `seed`; the rest of the pipeline is deterministic.
+    #[must_use]
+    pub fn with_seed(mut self, seed: u64) -> Self {
+        self.coarse.seed = seed;
+        self
+    }
+}
+
 /// A pipeline stage, as reported to the progress callback and in [`ReconReport`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
@@ -120,6 +169,7 @@ pub enum Stage {
 /// A progress event: `done` of `total` units of `stage` (the init stage reports 0/1 and
 /// 1/1; the coarse stage one unit per step, with the loss before that step).
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
 pub struct Progress {
     /// The stage running.
     pub stage: Stage,
@@ -134,6 +184,7 @@ pub struct Progress {
 /// Wall-clock time of one stage.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[non_exhaustive]
 pub struct StageTiming {
     /// Which stage.
     pub stage: Stage,
@@ -144,6 +195,7 @@ pub struct StageTiming {
 /// Everything [`reconstruct`] measured.
 #[derive(Debug, Clone, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[non_exhaustive]
 pub struct ReconReport {
     /// The start mesh: which one and why.
     pub init: InitReport,
@@ -161,8 +213,8 @@ pub struct ReconReport {
     pub seconds: f64,
 }
 
-/// Reconstructs a closed mesh, in the rig's world frame, from the normal maps and masks of
-/// `views` (one per view of `rig`, same order): [`crate::initial_mesh`] then
+/// Reconstructs a closed mesh, in the world frame of the views' rig, from the normal maps and
+/// masks of `views`: [`crate::initial_mesh`] then
 /// [`reconstruct_coarse`], then [`untangle`] and [`polish`] (on the vertices untangling moved
 /// and two rings around them). When the Poisson start misses a silhouette (IoU below
 /// [`InitOptions::hull_alternative_iou`]), the coarse stage also runs from
@@ -171,7 +223,6 @@ pub struct ReconReport {
 /// ignore them).
 pub fn reconstruct(
     views: &ViewSet,
-    rig: &ViewRig,
     options: &ReconOptions,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<(Mesh, ReconReport)> {
@@ -179,17 +230,16 @@ pub fn reconstruct(
     progress(Progress { stage: Stage::Init, done: 0, total: 1, loss: None });
     // A Poisson start that misses a silhouette badly may sit in the wrong basin: also
     // optimise from the visual hull and keep the lower final loss.
-    let (init, mut init_report, alternative) = start_meshes(views, rig, &options.init, true)?;
+    let (init, mut init_report, alternative) = start_meshes(views, &options.init, true)?;
     progress(Progress { stage: Stage::Init, done: 1, total: 1, loss: None });
     let runs = 1 + usize::from(alternative.is_some());
     let total = options.coarse.steps * runs;
-    let (mut mesh, mut coarse_report) =
-        reconstruct_coarse(views, rig, &init, &options.coarse, &mut |done, _, loss| {
-            progress(Progress { stage: Stage::Coarse, done, total, loss: Some(loss) })
-        })?;
+    let (mut mesh, mut coarse_report) = reconstruct_coarse(views, &init, &options.coarse, &mut |done, _, loss| {
+        progress(Progress { stage: Stage::Coarse, done, total, loss: Some(loss) })
+    })?;
     if let Some(hull) = alternative {
         let offset = options.coarse.steps;
-        let (hull_mesh, hull_report) = reconstruct_coarse(views, rig, &hull, &options.coarse, &mut |done, _, loss| {
+        let (hull_mesh, hull_report) = reconstruct_coarse(views, &hull, &options.coarse, &mut |done, _, loss| {
             progress(Progress { stage: Stage::Coarse, done: offset + done, total, loss: Some(loss) })
         })?;
         let final_loss = |r: &CoarseReport| r.losses.last().copied().unwrap_or(f32::INFINITY);
@@ -218,7 +268,7 @@ pub fn reconstruct(
     let untangle_seconds = t.elapsed().as_secs_f64();
     progress(Progress { stage: Stage::Polish, done: 0, total: 1, loss: None });
     let free = grow_rings(&untangled, moved_vertices(&mesh, &untangled), POLISH_RINGS);
-    let (mesh, polish_report) = polish(views, rig, &untangled, &free, &options.coarse, options.polish_steps)?;
+    let (mesh, polish_report) = polish(views, &untangled, &free, &options.coarse, options.polish_steps)?;
     progress(Progress { stage: Stage::Polish, done: 1, total: 1, loss: Some(polish_report.loss_after) });
     let stages = vec![
         StageTiming { stage: Stage::Init, seconds: init_report.seconds },

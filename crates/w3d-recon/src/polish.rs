@@ -19,9 +19,9 @@
 //! let start = w3d_remesh::icosphere(3, 0.3)?;
 //! let options = CoarseOptions::default();
 //! let free = vec![true; start.vertex_count()];
-//! let (mesh, report) = polish(&views, &rig, &start, &free, &options, 30)?;
+//! let (mesh, report) = polish(&views, &start, &free, &options, 30)?;
 //! assert!(report.loss_after < report.loss_before);
-//! assert!((view_loss(&views, &rig, &mesh, &options)? - report.loss_after).abs() < 1e-6);
+//! assert!((view_loss(&views, &mesh, &options)? - report.loss_after).abs() < 1e-6);
 //! assert!(mesh.self_intersections().is_empty());
 //! # Ok::<(), w3d_core::Error>(())
 //! ```
@@ -29,7 +29,7 @@
 use std::time::Instant;
 
 use glam::Vec3;
-use w3d_core::{Error, Mesh, Result, ViewRig, ViewSet, self_intersections, self_intersections_involving};
+use w3d_core::{Error, Mesh, Result, ViewSet, self_intersections, self_intersections_involving};
 
 use crate::coarse::{CoarseOptions, ViewFit};
 use crate::untangle::vertex_adjacency;
@@ -37,6 +37,7 @@ use crate::untangle::vertex_adjacency;
 /// What [`polish`] did.
 #[derive(Debug, Clone, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[non_exhaustive]
 pub struct PolishReport {
     /// Steps run (0 when the mesh entered with crossings: the guard needs a clean start).
     pub steps: usize,
@@ -74,7 +75,6 @@ const BETAS: (f32, f32) = (0.9, 0.99);
 /// distance from 0.0094 to 0.0075; the plane's from 0.156 to 0.091 (CD 0.0045 → 0.0039).
 pub fn polish(
     views: &ViewSet,
-    rig: &ViewRig,
     mesh: &Mesh,
     free: &[bool],
     options: &CoarseOptions,
@@ -87,7 +87,7 @@ pub fn polish(
             format!("one flag per vertex ({}), got {}", mesh.vertex_count(), free.len()),
         ));
     }
-    let fit = ViewFit::new(views, rig, options)?;
+    let fit = ViewFit::new(views, options)?;
     let triangles = mesh.triangles().to_vec();
     let mut positions = mesh.positions().to_vec();
     // The loss and gradient at the current positions: computed once per render, used by the
@@ -174,6 +174,7 @@ pub fn polish(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use w3d_core::ViewRig;
 
     /// Vertices that are not free stay exactly where they were; a mesh that comes in with
     /// crossings is returned unchanged.
@@ -183,7 +184,7 @@ mod tests {
         let views = w3d_raster::render_oracle_views(&w3d_remesh::icosphere(3, 0.36).unwrap(), &rig, 64).unwrap();
         let start = w3d_remesh::icosphere(3, 0.3).unwrap();
         let free: Vec<bool> = start.positions().iter().map(|p| p[1] > 0.0).collect();
-        let (mesh, report) = polish(&views, &rig, &start, &free, &CoarseOptions::default(), 20).unwrap();
+        let (mesh, report) = polish(&views, &start, &free, &CoarseOptions::default(), 20).unwrap();
         assert_eq!(report.steps, 20);
         for ((p, q), &f) in mesh.positions().iter().zip(start.positions()).zip(&free) {
             assert_eq!(p == q, !f, "free {f}: {p:?} vs {q:?}");
@@ -195,9 +196,9 @@ mod tests {
         let crossing = Mesh::new(crossing, start.triangles().to_vec()).unwrap();
         assert!(!crossing.self_intersections().is_empty());
         let all = vec![true; crossing.vertex_count()];
-        let (same, report) = polish(&views, &rig, &crossing, &all, &CoarseOptions::default(), 20).unwrap();
+        let (same, report) = polish(&views, &crossing, &all, &CoarseOptions::default(), 20).unwrap();
         assert_eq!(report.steps, 0);
         assert_eq!(same.positions(), crossing.positions());
-        assert!(polish(&views, &rig, &crossing, &all[1..], &CoarseOptions::default(), 20).is_err());
+        assert!(polish(&views, &crossing, &all[1..], &CoarseOptions::default(), 20).is_err());
     }
 }

@@ -32,6 +32,7 @@ use w3d_core::{Mesh, Result, self_intersections, self_intersections_involving};
 /// What [`untangle`] did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[non_exhaustive]
 pub struct UntangleReport {
     /// Crossing triangle pairs before.
     pub before: usize,

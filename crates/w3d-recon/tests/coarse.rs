@@ -11,10 +11,10 @@ fn spot_is_recovered_from_its_oracle_views() {
     spot.normalize_unit_cube();
     let rig = ViewRig::wonder3d_ortho();
     let views = w3d_raster::render_oracle_views(&spot, &rig, 128).unwrap();
-    let init = silhouette_sphere(&views, &rig, 3).unwrap();
-    let options = CoarseOptions { steps: 150, edge_len_lims: (0.025, 0.1), ..CoarseOptions::default() };
-    let (mesh, report) = reconstruct_coarse(&views, &rig, &init, &options, &mut |_, _, _| {}).unwrap();
-    let metrics = evaluate(&mesh, &spot, &EvalOptions { samples: 20_000, ..EvalOptions::default() }).unwrap();
+    let init = silhouette_sphere(&views, 3).unwrap();
+    let options = CoarseOptions::default().with_steps(150).with_edge_len_lims((0.025, 0.1));
+    let (mesh, report) = reconstruct_coarse(&views, &init, &options, &mut |_, _, _| {}).unwrap();
+    let metrics = evaluate(&mesh, &spot, &EvalOptions::default().with_samples(20_000)).unwrap();
     eprintln!(
         "spot 128²: chamfer {:.4}, F@0.02 {:.3}, iou64 {:.3}, {} triangles, loss {:.4} -> {:.4}, {:.1} s",
         metrics.chamfer,

@@ -25,12 +25,12 @@ fn poisson_start_is_closed_and_close_to_spot() {
     let truth = spot();
     for rig in [ViewRig::wonder3d_ortho(), ViewRig::wonder3d_persp()] {
         let views = w3d_raster::render_oracle_views(&truth, &rig, 128).unwrap();
-        let (mesh, report) = initial_mesh(&views, &rig, &InitOptions::default()).unwrap();
+        let (mesh, report) = initial_mesh(&views, &InitOptions::default()).unwrap();
         assert_eq!(report.choice, InitChoice::Poisson, "{}: {}", rig.name, report.reason);
         let topology = mesh.topology();
         assert!(topology.is_watertight(), "{}: {topology:?}", rig.name);
         assert_eq!(topology.genus(), Some(0), "{}", rig.name);
-        let m = evaluate(&mesh, &truth, &EvalOptions { samples: 20_000, ..EvalOptions::default() }).unwrap();
+        let m = evaluate(&mesh, &truth, &EvalOptions::default().with_samples(20_000)).unwrap();
         eprintln!(
             "{}: init {} triangles, CD {:.4}, IoU {:.3}, {:.2} s",
             rig.name, report.triangles, m.chamfer, m.iou_64, report.seconds
@@ -84,7 +84,7 @@ fn concave_check_fires_for_a_bowl_facing_the_camera_only() {
     let rig = ViewRig::wonder3d_ortho();
     let report = |mesh: &Mesh| {
         let views = w3d_raster::render_oracle_views(mesh, &rig, 128).unwrap();
-        let (_, report) = initial_mesh(&views, &rig, &InitOptions::default()).unwrap();
+        let (_, report) = initial_mesh(&views, &InitOptions::default()).unwrap();
         eprintln!("{:?}: {}", report.choice, report.reason);
         report
     };
@@ -112,8 +112,8 @@ fn bad_options_are_rejected() {
     let truth = spot();
     let rig = ViewRig::wonder3d_ortho();
     let views = w3d_raster::render_oracle_views(&truth, &rig, 64).unwrap();
-    let err = initial_mesh(&views, &rig, &InitOptions { grid: 4, ..InitOptions::default() }).unwrap_err();
+    let err = initial_mesh(&views, &InitOptions::default().with_grid(4)).unwrap_err();
     assert!(err.to_string().contains("grid"), "{err}");
-    let err = initial_mesh(&views, &rig, &InitOptions { edge_length: 0.0, ..InitOptions::default() }).unwrap_err();
+    let err = initial_mesh(&views, &InitOptions::default().with_edge_length(0.0)).unwrap_err();
     assert!(err.to_string().contains("edge_length"), "{err}");
 }

@@ -14,7 +14,7 @@ fn sphere(radius: f32) -> Mesh {
 fn depth_error(mesh: &Mesh, view: usize, size: u32, margin: usize) -> (f64, f64, f64) {
     let rig = ViewRig::wonder3d_ortho();
     let views = w3d_raster::render_oracle_views(mesh, &rig, size).unwrap();
-    let v = &views.views[view];
+    let v = &views.views()[view];
     let depth = integrate_normals(&v.normal, &v.mask, &rig.views[view].camera, &IntegrateOptions::default()).unwrap();
     let truth = v.depth.as_ref().unwrap();
     let s = size as usize;
@@ -56,7 +56,7 @@ fn integration_works_from_the_side_views_too() {
 fn perspective_cameras_and_empty_masks_are_rejected() {
     let rig = ViewRig::wonder3d_persp();
     let views = w3d_raster::render_oracle_views(&sphere(0.3), &ViewRig::wonder3d_ortho(), 32).unwrap();
-    let v = &views.views[0];
+    let v = &views.views()[0];
     assert!(integrate_normals(&v.normal, &v.mask, &rig.views[0].camera, &IntegrateOptions::default()).is_err());
     let empty = w3d_core::Image::filled(32, 32, 1, 0.0).unwrap();
     let ortho = ViewRig::wonder3d_ortho();

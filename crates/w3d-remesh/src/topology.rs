@@ -6,6 +6,7 @@ use crate::edges::{EdgeTable, NONE};
 
 /// Counts describing an oriented 2-manifold triangle mesh (with or without boundary).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct ManifoldSummary {
     /// Vertices used by at least one triangle.
     pub vertices: usize,

@@ -120,7 +120,7 @@ fn face_collapse_flags_flipped_and_small() {
     let faces = vec![[0, 1, 2], [0, 2, 3], [0, 3, 4], [0, 4, 1]];
     let alive = vec![true; 4];
     let table = EdgeTable::new(&faces, None, 5);
-    let exact = RemeshParams { shortest_probability: 1.0, ..RemeshParams::default() };
+    let exact = RemeshParams::default().with_shortest_probability(1.0);
     let tiny = vec![1e-3; 5];
     let flags = |positions: &[[f32; 3]], min_len: &[f32]| {
         let len = table.lengths(positions);
@@ -150,7 +150,7 @@ fn face_collapse_flags_random_choice() {
     let faces = vec![[0, 1, 2]];
     let table = EdgeTable::new(&faces, None, 3);
     let len = table.lengths(&positions);
-    let params = RemeshParams { shortest_probability: 0.7, ..RemeshParams::default() };
+    let params = RemeshParams::default().with_shortest_probability(0.7);
     let mut counts = [0usize; 3];
     for seed in 0..3500u64 {
         let flags = ops::face_collapse_flags(&positions, &faces, &[true], &table, &len, &[1.0; 3], &params, seed);
@@ -195,7 +195,7 @@ fn optimizer_first_step_arithmetic() {
 fn optimizer_learning_rate_ramp() {
     // Constant gradient, no Laplacian: |velocity| = 1, the step is lr · min(1, 0.2 t) · 0.15.
     let sphere = icosphere(1, 0.5).unwrap();
-    let options = RemeshOptions { laplacian_weight: 0.0, ..RemeshOptions::default() };
+    let options = RemeshOptions::default().with_laplacian_weight(0.0);
     let mut opt = MeshOptimizer::from_mesh(&sphere, options).unwrap();
     let grad = vec![[0.0, 0.0, 1.0]; opt.vertex_count()];
     for t in 1..=7 {
@@ -234,7 +234,7 @@ fn new_rejects_bad_meshes() {
     let err = MeshOptimizer::new(p6, vec![[0, 1, 2], [0, 3, 4]], o).unwrap_err().to_string();
     assert!(err.contains("vertex 0"), "{err}");
     // Bad options.
-    let bad = RemeshOptions { edge_len_lims: (0.2, 0.1), ..o };
+    let bad = o.with_edge_len_lims((0.2, 0.1));
     let err = MeshOptimizer::new(p, vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]], bad).unwrap_err().to_string();
     assert!(err.contains("edge_len_lims"), "{err}");
 }

@@ -55,7 +55,7 @@ fn perturbed(mesh: &Mesh, jitter: f32, seed: u64) -> Vec<[f32; 3]> {
 
 fn run_rounds(mesh: &Mesh, jitter: f32, sigma: f32, seed: u64) -> Result<(), TestCaseError> {
     let start = check_manifold(mesh.vertex_count(), mesh.triangles()).expect("input is manifold");
-    let options = RemeshOptions { seed, edge_len_lims: (0.04, 0.12), ..RemeshOptions::default() };
+    let options = RemeshOptions::default().with_seed(seed).with_edge_len_lims((0.04, 0.12));
     let mut opt = MeshOptimizer::new(perturbed(mesh, jitter, seed), mesh.triangles().to_vec(), options).unwrap();
     let (lo, hi) = options.edge_len_lims;
     let target = ClosestPoints::new(mesh.positions(), mesh.triangles(), 0.03);
@@ -125,7 +125,7 @@ fn same_seed_same_bytes() {
     let spot = common::load_unit("spot.obj");
     let target = ClosestPoints::new(spot.positions(), spot.triangles(), 0.03);
     let run = |seed: u64| {
-        let options = RemeshOptions { seed, ..RemeshOptions::default() };
+        let options = RemeshOptions::default().with_seed(seed);
         let mut opt = MeshOptimizer::from_mesh(&spot, options).unwrap();
         for round in 0..20 {
             let grad = gradient(&target, opt.positions(), 0.5, round);

@@ -17,7 +17,7 @@ fn icosphere_fits_spot() {
     let target_samples = samples(spot.positions(), spot.triangles());
     // The lower limit stands in for a pixel footprint (0.02 ≈ 3.4 px of a 1.5-unit view at
     // 256²) and keeps the test small; everything else is the default.
-    let options = RemeshOptions { edge_len_lims: (0.02, 0.15), ..RemeshOptions::default() };
+    let options = RemeshOptions::default().with_edge_len_lims((0.02, 0.15));
     let mut opt = MeshOptimizer::from_mesh(&icosphere(3, 0.4).unwrap(), options).unwrap();
     let started = std::time::Instant::now();
     let (mut floor_passes, mut left_short) = (0, Vec::new());

@@ -18,6 +18,7 @@ const MERGE_MAX_ANGLE_DEG: f64 = 85.0;
 
 /// Options of [`build_atlas`].
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
 pub struct AtlasOptions {
     /// Side of the square atlas in texels (the texture size the layout is packed for).
     pub size: u32,
@@ -35,9 +36,35 @@ impl Default for AtlasOptions {
     }
 }
 
+/// Chainable setters, one per field: `AtlasOptions::default().with_…(…)` (the struct is
+/// `#[non_exhaustive]`, so code outside this crate cannot use struct-literal syntax).
+impl AtlasOptions {
+    /// These options with [`size`](Self::size) set to `value`.
+    #[must_use]
+    pub fn with_size(mut self, value: u32) -> Self {
+        self.size = value;
+        self
+    }
+
+    /// These options with [`padding`](Self::padding) set to `value`.
+    #[must_use]
+    pub fn with_padding(mut self, value: u32) -> Self {
+        self.padding = value;
+        self
+    }
+
+    /// These options with [`max_chart_angle_deg`](Self::max_chart_angle_deg) set to `value`.
+    #[must_use]
+    pub fn with_max_chart_angle_deg(mut self, value: f32) -> Self {
+        self.max_chart_angle_deg = value;
+        self
+    }
+}
+
 /// Measurements of an atlas.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[non_exhaustive]
 pub struct AtlasReport {
     /// Number of charts.
     pub charts: usize,
@@ -56,6 +83,7 @@ pub struct AtlasReport {
 /// A seamed copy of a mesh with texture coordinates: vertices are duplicated where
 /// charts meet (positions bit-identical), triangles keep their order.
 #[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
 pub struct Atlas {
     /// Vertex positions (those of the input mesh, duplicated along seams).
     pub positions: Vec<[f32; 3]>,

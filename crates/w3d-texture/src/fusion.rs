@@ -4,7 +4,7 @@
 use glam::{Mat3, Vec3};
 use rayon::prelude::*;
 use w3d_core::image::srgb_to_linear;
-use w3d_core::{Camera, Error, Projection, Result, ViewRig, ViewSet};
+use w3d_core::{Camera, Error, Projection, Result, ViewSet};
 use w3d_raster::{NO_TRIANGLE, rasterize_views};
 
 use crate::charts::Surface;
@@ -40,28 +40,20 @@ pub(crate) struct ViewSampler {
 }
 
 /// Samplers for every view of `views` that has a colour image, with the mesh rasterised
-/// through the rig at the views' size. Errors when the set does not match the rig or no
-/// view has colours.
-pub(crate) fn samplers(
-    positions: &[[f32; 3]],
-    triangles: &[[u32; 3]],
-    views: &ViewSet,
-    rig: &ViewRig,
-) -> Result<Vec<ViewSampler>> {
-    rig.validate()?;
-    views.validate(rig)?;
-    let with_colour: Vec<usize> = (0..views.views.len()).filter(|&i| views.views[i].colour.is_some()).collect();
+/// through the set's rig at the views' size. Errors when no view has colours.
+pub(crate) fn samplers(positions: &[[f32; 3]], triangles: &[[u32; 3]], views: &ViewSet) -> Result<Vec<ViewSampler>> {
+    let with_colour: Vec<usize> = (0..views.len()).filter(|&i| views.views()[i].colour.is_some()).collect();
     if with_colour.is_empty() {
         return Err(Error::invalid("views", "at least one view with a colour image"));
     }
     let (w, h) = (views.width(), views.height());
-    let cameras: Vec<Camera> = with_colour.iter().map(|&i| rig.views[i].camera).collect();
+    let cameras: Vec<Camera> = with_colour.iter().map(|&i| views.rig().views[i].camera).collect();
     let rasters = rasterize_views(positions, triangles, &cameras, w, h)?;
     Ok(rasters
         .into_par_iter()
         .zip(with_colour)
         .map(|(raster, i)| {
-            let images = &views.views[i];
+            let images = &views.views()[i];
             let colour_image = images.colour.as_ref().expect("filtered on colour");
             let mask = images.mask.data();
             let depth = raster

@@ -1,4 +1,4 @@
-//! Texturing for wonder3d-rs: turns a mesh and its colour views ([`ViewSet`] + [`ViewRig`])
+//! Texturing for wonder3d-rs: turns a mesh and its colour views (a [`ViewSet`], which carries its rig)
 //! into a textured mesh. [`bake`] fuses the views into per-vertex colours (visibility from
 //! the rasteriser, weights `|cos(view, normal)|^k`), propagates colours to vertices no view
 //! sees, builds a UV atlas ([`build_atlas`]: normal-cone charts, least-squares conformal
@@ -7,7 +7,7 @@
 //! across chart borders. [`fuse_vertex_colours`] is the per-vertex part alone (the
 //! vertex-colour fallback).
 //!
-//! Conventions: positions in the canonical frame (`DESIGN.md` §3); uvs in the OBJ
+//! Conventions: positions in the canonical frame (`docs/architecture.md`, "Conventions"); uvs in the OBJ
 //! convention of [`Mesh::with_uvs`] (v up); view colours are sRGB in `[0, 1]` and are
 //! blended in linear RGB; the baked texture is sRGB, `[H][W][3]`, row 0 at the top (v = 1).
 //! The textured mesh has the input's triangles in the same order and positions, with
@@ -24,8 +24,8 @@
 //! let mesh = Mesh::new(p, t)?.with_colours(colours)?;
 //! let rig = ViewRig::wonder3d_ortho();
 //! let views = w3d_raster::render_oracle_views(&mesh, &rig, 64)?;
-//! let options = TextureOptions { size: 128, ..TextureOptions::default() };
-//! let textured = bake(&mesh.clone().without_attributes(), &views, &rig, &options)?;
+//! let options = TextureOptions::default().with_size(128);
+//! let textured = bake(&mesh.clone().without_attributes(), &views, &options)?;
 //! assert_eq!(textured.mesh.triangle_count(), 8);
 //! assert_eq!(textured.mesh.texture().unwrap().width(), 128);
 //! assert!(textured.report.atlas.charts >= 2);
@@ -45,12 +45,13 @@ pub use atlas::{Atlas, AtlasOptions, AtlasReport, build_atlas};
 
 use glam::Vec3;
 use w3d_core::image::linear_to_srgb;
-use w3d_core::{Error, Image, Mesh, Result, ViewRig, ViewSet};
+use w3d_core::{Error, Image, Mesh, Result, ViewSet};
 
 use crate::charts::Surface;
 
 /// Options of [`bake`].
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
 pub struct TextureOptions {
     /// Side of the square texture in texels (default 1024).
     pub size: u32,
@@ -74,6 +75,45 @@ impl Default for TextureOptions {
     }
 }
 
+/// Chainable setters, one per field: `TextureOptions::default().with_…(…)` (the struct is
+/// `#[non_exhaustive]`, so code outside this crate cannot use struct-literal syntax).
+impl TextureOptions {
+    /// These options with [`size`](Self::size) set to `value`.
+    #[must_use]
+    pub fn with_size(mut self, value: u32) -> Self {
+        self.size = value;
+        self
+    }
+
+    /// These options with [`padding`](Self::padding) set to `value`.
+    #[must_use]
+    pub fn with_padding(mut self, value: u32) -> Self {
+        self.padding = value;
+        self
+    }
+
+    /// These options with [`dilation`](Self::dilation) set to `value`.
+    #[must_use]
+    pub fn with_dilation(mut self, value: u32) -> Self {
+        self.dilation = value;
+        self
+    }
+
+    /// These options with [`view_weight_exponent`](Self::view_weight_exponent) set to `value`.
+    #[must_use]
+    pub fn with_view_weight_exponent(mut self, value: f32) -> Self {
+        self.view_weight_exponent = value;
+        self
+    }
+
+    /// These options with [`max_chart_angle_deg`](Self::max_chart_angle_deg) set to `value`.
+    #[must_use]
+    pub fn with_max_chart_angle_deg(mut self, value: f32) -> Self {
+        self.max_chart_angle_deg = value;
+        self
+    }
+}
+
 impl TextureOptions {
     /// The atlas part of the options.
     pub fn atlas(&self) -> AtlasOptions {
@@ -84,6 +124,7 @@ impl TextureOptions {
 /// Measurements of a bake.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize))]
+#[non_exhaustive]
 pub struct BakeReport {
     /// The atlas measurements.
     pub atlas: AtlasReport,
@@ -99,6 +140,7 @@ pub struct BakeReport {
 
 /// The result of [`bake`].
 #[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
 pub struct TexturedMesh {
     /// The input geometry with vertices split along chart seams, uvs, position-welded
     /// smooth normals and the baked sRGB texture (export with `w3d_core::io::write_glb` or
@@ -127,6 +169,7 @@ pub enum BakeStage {
 
 /// The vertex-colour result of [`fuse_vertex_colours`].
 #[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
 pub struct VertexColoured {
     /// The input positions and triangles as given, with position-welded smooth normals and
     /// the fused (and propagated) sRGB vertex colours.
@@ -141,13 +184,12 @@ pub struct VertexColoured {
 fn fuse_views(
     mesh: &Mesh,
     views: &ViewSet,
-    rig: &ViewRig,
     k: f32,
 ) -> Result<(Vec<fusion::ViewSampler>, Surface, Vec<Vec3>, fusion::WeldedColours)> {
     if !(k.is_finite() && k >= 0.0) {
         return Err(Error::invalid("view_weight_exponent", format!("a finite value ≥ 0, got {k}")));
     }
-    let samplers = fusion::samplers(mesh.positions(), mesh.triangles(), views, rig)?;
+    let samplers = fusion::samplers(mesh.positions(), mesh.triangles(), views)?;
     let surface = Surface::new(mesh.positions(), mesh.triangles());
     let normals = fusion::welded_normals(&surface);
     let fused = fusion::fuse(&surface, &normals, &samplers, k)?;
@@ -178,13 +220,8 @@ fn seen_fraction(fused: &fusion::WeldedColours) -> f64 {
 /// `|cos|^k` with `k = options.view_weight_exponent`, visibility from the rasteriser) and
 /// propagates them to unseen vertices; no atlas, no texture. The fallback for viewers
 /// without textures, and much cheaper than a bake.
-pub fn fuse_vertex_colours(
-    mesh: &Mesh,
-    views: &ViewSet,
-    rig: &ViewRig,
-    options: &TextureOptions,
-) -> Result<VertexColoured> {
-    let (samplers, surface, normals, fused) = fuse_views(mesh, views, rig, options.view_weight_exponent)?;
+pub fn fuse_vertex_colours(mesh: &Mesh, views: &ViewSet, options: &TextureOptions) -> Result<VertexColoured> {
+    let (samplers, surface, normals, fused) = fuse_views(mesh, views, options.view_weight_exponent)?;
     Ok(VertexColoured {
         mesh: vertex_coloured_mesh(mesh, &surface, &normals, &fused)?,
         views_used: samplers.len(),
@@ -192,20 +229,18 @@ pub fn fuse_vertex_colours(
     })
 }
 
-/// Textures `mesh` from the colour images of `views` (seen through `rig`); see the crate
-/// documentation. Views without a colour image are skipped.
+/// Textures `mesh` from the colour images of `views` (seen through the set's rig); see the
+/// crate documentation. Views without a colour image are skipped.
 ///
-/// Errors when the view set does not match the rig, no view has colours or sees the mesh,
-/// or the options are out of range.
-pub fn bake(mesh: &Mesh, views: &ViewSet, rig: &ViewRig, options: &TextureOptions) -> Result<TexturedMesh> {
-    bake_with_progress(mesh, views, rig, options, &mut |_| {})
+/// Errors when no view has colours or sees the mesh, or the options are out of range.
+pub fn bake(mesh: &Mesh, views: &ViewSet, options: &TextureOptions) -> Result<TexturedMesh> {
+    bake_with_progress(mesh, views, options, &mut |_| {})
 }
 
 /// [`bake`], calling `progress` as each stage starts.
 pub fn bake_with_progress(
     mesh: &Mesh,
     views: &ViewSet,
-    rig: &ViewRig,
     options: &TextureOptions,
     progress: &mut dyn FnMut(BakeStage),
 ) -> Result<TexturedMesh> {
@@ -214,7 +249,7 @@ pub fn bake_with_progress(
         return Err(Error::invalid("dilation", format!("at most the texture size, got {}", options.dilation)));
     }
     progress(BakeStage::FusingVertexColours);
-    let (samplers, surface, normals, fused) = fuse_views(mesh, views, rig, k)?;
+    let (samplers, surface, normals, fused) = fuse_views(mesh, views, k)?;
 
     progress(BakeStage::BuildingAtlas);
     let atlas = build_atlas(mesh, &options.atlas())?;

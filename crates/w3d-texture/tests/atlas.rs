@@ -151,7 +151,7 @@ fn armadillo_atlas() {
 fn the_overlap_test_finds_overlaps() {
     let p = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [1.0, 1.0, 0.0]];
     let mesh = Mesh::new(p, vec![[0, 1, 2], [1, 3, 2]]).unwrap();
-    let mut atlas = build_atlas(&mesh, &AtlasOptions { size: 64, ..AtlasOptions::default() }).unwrap();
+    let mut atlas = build_atlas(&mesh, &AtlasOptions::default().with_size(64)).unwrap();
     assert!(uv_overlaps(&atlas).0.is_empty());
     // Sharing an edge is not an overlap; folding one triangle over the other is.
     let t = atlas.triangles[1];

@@ -31,13 +31,13 @@ fn check(name: &str, path: &str) {
     let views = render_oracle_views(&truth, &rig, VIEW_SIZE).unwrap();
     let geometry = truth.clone().without_attributes();
     let start = std::time::Instant::now();
-    let textured = bake(&geometry, &views, &rig, &TextureOptions::default()).unwrap();
+    let textured = bake(&geometry, &views, &TextureOptions::default()).unwrap();
     let seconds = start.elapsed().as_secs_f64();
     let report = textured.report;
     assert_eq!(report.views_used, 6);
     assert_eq!(textured.mesh.triangle_count(), truth.triangle_count());
 
-    let inputs: Vec<Image> = views.views.iter().map(|v| v.colour.clone().unwrap()).collect();
+    let inputs: Vec<Image> = views.views().iter().map(|v| v.colour.clone().unwrap()).collect();
     let (input_psnr, input_min, input_ssim) =
         compare(&inputs, &render_colours(&textured.mesh, &rig, VIEW_SIZE).unwrap());
     let novel_rig = ViewRig::syncdreamer16();

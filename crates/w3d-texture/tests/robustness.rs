@@ -28,9 +28,9 @@ fn open_mesh_seen_from_two_views_bakes_with_propagated_colours() {
     let rig = front_and_back();
     let views = render_oracle_views(&truth, &rig, 128).unwrap();
     let geometry = truth.clone().without_attributes();
-    let options = TextureOptions { size: 512, ..TextureOptions::default() };
+    let options = TextureOptions::default().with_size(512);
     let mut stages = Vec::new();
-    let textured = bake_with_progress(&geometry, &views, &rig, &options, &mut |s| stages.push(s)).unwrap();
+    let textured = bake_with_progress(&geometry, &views, &options, &mut |s| stages.push(s)).unwrap();
     assert_eq!(
         stages,
         [BakeStage::FusingVertexColours, BakeStage::BuildingAtlas, BakeStage::Baking, BakeStage::Dilating]
@@ -64,10 +64,10 @@ fn exports_round_trip() {
     let truth = teacup();
     let rig = ViewRig::wonder3d_ortho();
     let views = render_oracle_views(&truth, &rig, 96).unwrap();
-    let options = TextureOptions { size: 256, ..TextureOptions::default() };
+    let options = TextureOptions::default().with_size(256);
     let geometry = truth.clone().without_attributes();
-    let textured = bake(&geometry, &views, &rig, &options).unwrap();
-    let fused = fuse_vertex_colours(&geometry, &views, &rig, &options).unwrap();
+    let textured = bake(&geometry, &views, &options).unwrap();
+    let fused = fuse_vertex_colours(&geometry, &views, &options).unwrap();
     assert_eq!(fused.mesh, textured.vertex_coloured);
     assert_eq!(fused.seen_vertex_fraction, textured.report.seen_vertex_fraction);
     let dir = tempfile::tempdir().unwrap();
@@ -98,39 +98,40 @@ fn exports_round_trip() {
 fn views_without_colour_are_skipped_and_bad_input_is_an_error() {
     let truth = teacup();
     let rig = ViewRig::wonder3d_ortho();
-    let mut views = render_oracle_views(&truth, &rig, 64).unwrap();
+    let (rig, mut images) = render_oracle_views(&truth, &rig, 64).unwrap().into_parts();
     let geometry = truth.clone().without_attributes();
-    let options = TextureOptions { size: 128, ..TextureOptions::default() };
-    views.views[1].colour = None;
-    views.views[4].colour = None;
-    assert_eq!(bake(&geometry, &views, &rig, &options).unwrap().report.views_used, 4);
+    let options = TextureOptions::default().with_size(128);
+    images[1].colour = None;
+    images[4].colour = None;
+    let views = ViewSet::new(rig.clone(), images).unwrap();
+    assert_eq!(bake(&geometry, &views, &options).unwrap().report.views_used, 4);
 
-    let no_colour = ViewSet {
-        views: views
-            .views
-            .iter()
-            .cloned()
-            .map(|mut v| {
-                v.colour = None;
-                v
-            })
-            .collect(),
-    };
-    let err = bake(&geometry, &no_colour, &rig, &options).unwrap_err().to_string();
+    let without_colour = views
+        .views()
+        .iter()
+        .cloned()
+        .map(|mut v| {
+            v.colour = None;
+            v
+        })
+        .collect();
+    let no_colour = ViewSet::new(rig.clone(), without_colour).unwrap();
+    let err = bake(&geometry, &no_colour, &options).unwrap_err().to_string();
     assert!(err.contains("colour"), "{err}");
-    let err = bake(&geometry, &views, &front_and_back(), &options).unwrap_err().to_string();
+    // Six views cannot be paired with a two-view rig.
+    let err = ViewSet::new(front_and_back(), views.views().to_vec()).unwrap_err().to_string();
     assert!(err.contains("views"), "{err}");
     for bad in [
-        TextureOptions { size: 4, ..options },
-        TextureOptions { view_weight_exponent: f32::NAN, ..options },
-        TextureOptions { max_chart_angle_deg: 90.0, ..options },
-        TextureOptions { padding: 100, ..options },
+        options.with_size(4),
+        options.with_view_weight_exponent(f32::NAN),
+        options.with_max_chart_angle_deg(90.0),
+        options.with_padding(100),
     ] {
-        assert!(bake(&geometry, &views, &rig, &bad).is_err(), "{bad:?}");
+        assert!(bake(&geometry, &views, &bad).is_err(), "{bad:?}");
     }
     // A mesh outside every view's frame: nothing is seen.
     let mut far = geometry.clone();
     far.map_positions(|p| p + w3d_core::glam::Vec3::new(0.0, 5.0, 0.0)).unwrap();
-    let err = bake(&far, &views, &rig, &options).unwrap_err().to_string();
+    let err = bake(&far, &views, &options).unwrap_err().to_string();
     assert!(err.contains("sees"), "{err}");
 }

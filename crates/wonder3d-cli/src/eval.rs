@@ -95,10 +95,10 @@ pub fn run(args: &EvalArgs) -> Result<()> {
     if args.normalize_pred {
         pred.normalize_unit_cube();
     }
-    let options = EvalOptions { samples: args.samples, seed: args.seed, normalize_pred: false };
+    let options = EvalOptions::default().with_samples(args.samples).with_seed(args.seed).with_normalize_pred(false);
     let report = Report::new(&pred, &gt, &options, args.visible)?;
     let icp: Option<(Similarity, Report)> = if args.icp {
-        let similarity = align_icp_scale(&pred, &gt, &IcpOptions { seed: args.seed, ..Default::default() })?;
+        let similarity = align_icp_scale(&pred, &gt, &IcpOptions::default().with_seed(args.seed))?;
         let aligned = similarity.apply_to_mesh(&pred)?;
         Some((similarity, Report::new(&aligned, &gt, &options, args.visible)?))
     } else {

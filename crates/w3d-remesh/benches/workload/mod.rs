@@ -31,7 +31,7 @@ pub fn steady_state_optimizer(frequency: u32) -> MeshOptimizer {
         })
         .sum::<f32>()
         / edges.len() as f32;
-    let options = RemeshOptions { edge_len_lims: (mean, mean), ..RemeshOptions::default() };
+    let options = RemeshOptions::default().with_edge_len_lims((mean, mean));
     let mut opt = MeshOptimizer::from_mesh(&sphere, options).expect("optimizer");
     for _ in 0..5 {
         let grad = wavy_sphere_gradient(opt.positions());
