@@ -4,9 +4,15 @@ Builds tiny random-weight configs of the diffusers UNet2DConditionModel and Auto
 the transformers CLIPVisionModelWithProjection, runs them (f32, CPU) on fixed inputs, runs DDIM
 sampling (with classifier-free guidance) and DDIM inversion, builds a tiny Wonder3D++ multi-view
 cross-domain UNet (on diffusers' blocks, with the real checkpoint key names) and runs one forward
-per camera type and a 5-step guided multi-view pipeline, and saves configs, weights, inputs and
-outputs under crates/w3d-diffusion/tests/fixtures. Needs torch, diffusers, transformers,
-safetensors, pillow.
+per camera type and a 5-step guided multi-view pipeline, plus a tiny UNet with the second
+cross-domain attention after the feed-forward (`cd_attention_last`) and one forward of it,
+and saves configs, weights, inputs and outputs under crates/w3d-diffusion/tests/fixtures.
+Needs torch, diffusers, transformers, safetensors, pillow.
+
+`python fixtures_diffusion.py cd_attention_last` writes only the `cd_attention_last` fixtures
+(`wonder3d_tiny_last/`, `multiview/unet_last_io.safetensors`): the other fixtures' outputs
+move in the last bits between torch / transformers versions, so they need not be rewritten to
+add this one. Last written with torch 2.4.1, diffusers 0.30.3, transformers 4.45.2.
 """
 
 import json
@@ -298,18 +304,28 @@ class CrossDomainAttnProcessor:
 
 def mv_block_forward(self, hidden_states, attention_mask=None, encoder_hidden_states=None, **kwargs):
     """Pre-norm residual order of the multi-view block: MV self-attention, cross-domain
-    attention, cross-attention to the CLIP token, GEGLU feed-forward."""
+    attention, cross-attention to the CLIP token, GEGLU feed-forward and, with
+    `cd_attention_last`, a second cross-domain attention."""
     h = self.attn1(self.norm1(hidden_states)) + hidden_states
     h = self.attn_joint_mid(self.norm_joint_mid(h)) + h
     h = self.attn2(self.norm2(h), encoder_hidden_states=encoder_hidden_states) + h
-    return self.ff(self.norm3(h)) + h
+    h = self.ff(self.norm3(h)) + h
+    if getattr(self, "attn_joint_last", None) is not None:
+        h = self.attn_joint_last(self.norm_joint_last(h)) + h
+    return h
 
 
-def make_multiview(unet):
+def make_multiview(unet, last=False):
     """Turns every transformer block of a diffusers UNet into the multi-view cross-domain block
-    (attn1 keeps its weights, `attn_joint_mid` + `norm_joint_mid` are new)."""
+    (attn1 keeps its weights, `attn_joint_mid` + `norm_joint_mid` are new; with `last`, also
+    `attn_joint_last` + `norm_joint_last`, registered after the feed-forward)."""
     from diffusers.models.attention import BasicTransformerBlock
     from diffusers.models.attention_processor import Attention
+
+    def joint(dim, heads):
+        return Attention(
+            query_dim=dim, heads=heads, dim_head=dim // heads, bias=False, processor=CrossDomainAttnProcessor()
+        )
 
     for module in unet.modules():
         if isinstance(module, BasicTransformerBlock):
@@ -317,9 +333,10 @@ def make_multiview(unet):
             heads = module.attn1.heads
             module.attn1.set_processor(MultiViewAttnProcessor(NUM_VIEWS))
             module.norm_joint_mid = torch.nn.LayerNorm(dim)
-            module.attn_joint_mid = Attention(
-                query_dim=dim, heads=heads, dim_head=dim // heads, bias=False, processor=CrossDomainAttnProcessor()
-            )
+            module.attn_joint_mid = joint(dim, heads)
+            if last:
+                module.attn_joint_last = joint(dim, heads)
+                module.norm_joint_last = torch.nn.LayerNorm(dim)
             module.forward = types.MethodType(mv_block_forward, module)
 
 
@@ -359,14 +376,14 @@ MV_UNET = dict(
 )
 
 
-def wonder3d_unet_config(unet):
+def wonder3d_unet_config(unet, last=False):
     """The tiny UNet's config.json in the form of a Wonder3D checkpoint (UNetMV2DConditionModel)."""
     config = dict(unet.config)
     config["_class_name"] = "UNetMV2DConditionModel"
     config["down_block_types"] = [t.replace("CrossAttnDownBlock2D", "CrossAttnDownBlockMV2D") for t in config["down_block_types"]]
     config["up_block_types"] = [t.replace("CrossAttnUpBlock2D", "CrossAttnUpBlockMV2D") for t in config["up_block_types"]]
     config["mid_block_type"] = "UNetMidBlockMV2DCrossAttn"
-    config.update(num_views=NUM_VIEWS, cd_attention_mid=True, cd_attention_last=False, multiview_attention=True,
+    config.update(num_views=NUM_VIEWS, cd_attention_mid=True, cd_attention_last=last, multiview_attention=True,
                   sparse_mv_attention=False, mvcd_attention=False)
     return config
 
@@ -499,13 +516,44 @@ def multiview_fixtures():
     )
 
 
+def cd_attention_last_fixtures():
+    """`tests/fixtures/wonder3d_tiny_last/unet/`: a tiny multi-view UNet with both cross-domain
+    attentions (`cd_attention_mid` and `cd_attention_last`; the last one's output weight is
+    random, not zero, so it mixes the domains), f16, and `tests/fixtures/multiview/
+    unet_last_io.safetensors`: one forward of the 12-image batch."""
+    torch.manual_seed(3)
+    unet_dir = os.path.join(OUT, "wonder3d_tiny_last", "unet")
+    os.makedirs(unet_dir, exist_ok=True)
+    os.makedirs(os.path.join(OUT, "multiview"), exist_ok=True)
+    unet = UNet2DConditionModel(**MV_UNET).eval()
+    make_multiview(unet, last=True)
+    perturb_norms(unet)
+    to_f16_values(unet)
+    save_file(state(unet, torch.float16), os.path.join(unet_dir, "diffusion_pytorch_model.safetensors"))
+    write_config(os.path.join(unet_dir, "config.json"), wonder3d_unet_config(unet, last=True))
+    n = 2 * NUM_VIEWS
+    sample = torch.randn(n, 8, 8, 8)
+    context = torch.randn(n, 1, 16)
+    timesteps = torch.tensor([421.0])
+    labels = torch.cat([switcher_labels("normal", "persp"), switcher_labels("colour", "persp")])
+    out = unet(sample, timesteps, encoder_hidden_states=context, class_labels=labels).sample
+    save(
+        {"sample": sample, "context": context, "timesteps": timesteps, "class_labels": labels, "out": out},
+        os.path.join(OUT, "multiview", "unet_last_io.safetensors"),
+    )
+
+
 def main():
     os.makedirs(OUT, exist_ok=True)
+    if sys.argv[1:] == ["cd_attention_last"]:
+        cd_attention_last_fixtures()
+        return
     unet = unet_fixture()
     vae_fixture()
     clip_fixture()
     scheduler_fixture(unet)
     multiview_fixtures()
+    cd_attention_last_fixtures()
     total = sum(os.path.getsize(os.path.join(r, f)) for r, _, fs in os.walk(OUT) for f in fs)
     print(f"fixtures written to {os.path.normpath(OUT)}: {total / 1e6:.2f} MB")
     if total > 5e6:

@@ -167,15 +167,18 @@ impl Attention {
 }
 
 /// `BasicTransformerBlock`: pre-norm self-attention, cross-attention and GEGLU feed-forward,
-/// each with a residual connection; as Wonder3D's `BasicMVTransformerBlock` (design reference
-/// `wonder3d.md` §1.3) the self-attention may be multi-view and a cross-domain attention
-/// (`attn_joint_mid`) may follow it.
+/// each with a residual connection; as Wonder3D's `BasicMVTransformerBlock` (see the
+/// [`crate::unet`] module docs) the self-attention may be multi-view, a cross-domain attention
+/// (`attn_joint_mid`) may follow it and another (`attn_joint_last`) may follow the
+/// feed-forward.
 #[derive(Module, Debug)]
 pub struct TransformerBlock {
     norm1: LayerNorm,
     attn1: Attention,
     norm_joint_mid: Option<LayerNorm>,
     attn_joint_mid: Option<Attention>,
+    norm_joint_last: Option<LayerNorm>,
+    attn_joint_last: Option<Attention>,
     norm2: LayerNorm,
     attn2: Attention,
     norm3: LayerNorm,
@@ -191,25 +194,40 @@ impl TransformerBlock {
         let inner = 4 * dim;
         let norm1 = LayerNorm::load(p, &format!("{key}.norm1"), dim, 1e-5);
         let attn1 = Attention::load(p, &format!("{key}.attn1"), dim, dim, heads, false);
-        // Wonder3D: fresh cross-domain attention starts as the identity (zero output weight).
-        let (norm_joint_mid, attn_joint_mid) = if s.cross_domain {
-            let norm = LayerNorm::load(p, &format!("{key}.norm_joint_mid"), dim, 1e-5);
-            let attn =
-                Attention::load_with_out_init(p, &format!("{key}.attn_joint_mid"), dim, dim, heads, false, Init::Zeros);
+        // Wonder3D: a fresh cross-domain attention has a zero output weight, so it adds only
+        // its output bias (the same for every token): it starts without cross-domain mixing.
+        let joint = |p: &mut ParamSource, name: &str| {
+            let norm = LayerNorm::load(p, &format!("{key}.norm_joint_{name}"), dim, 1e-5);
+            let attn = Attention::load_with_out_init(
+                p,
+                &format!("{key}.attn_joint_{name}"),
+                dim,
+                dim,
+                heads,
+                false,
+                Init::Zeros,
+            );
             (Some(norm), Some(attn))
-        } else {
-            (None, None)
         };
+        let (norm_joint_mid, attn_joint_mid) = if s.cross_domain_mid { joint(p, "mid") } else { (None, None) };
+        let norm2 = LayerNorm::load(p, &format!("{key}.norm2"), dim, 1e-5);
+        let attn2 = Attention::load(p, &format!("{key}.attn2"), dim, s.cross_dim, heads, false);
+        let norm3 = LayerNorm::load(p, &format!("{key}.norm3"), dim, 1e-5);
+        let ff_proj = Linear::load(p, &format!("{key}.ff.net.0.proj"), dim, 2 * inner, true);
+        let ff_out = Linear::load(p, &format!("{key}.ff.net.2"), inner, dim, true);
+        let (norm_joint_last, attn_joint_last) = if s.cross_domain_last { joint(p, "last") } else { (None, None) };
         Self {
             norm1,
             attn1,
             norm_joint_mid,
             attn_joint_mid,
-            norm2: LayerNorm::load(p, &format!("{key}.norm2"), dim, 1e-5),
-            attn2: Attention::load(p, &format!("{key}.attn2"), dim, s.cross_dim, heads, false),
-            norm3: LayerNorm::load(p, &format!("{key}.norm3"), dim, 1e-5),
-            ff_proj: Linear::load(p, &format!("{key}.ff.net.0.proj"), dim, 2 * inner, true),
-            ff_out: Linear::load(p, &format!("{key}.ff.net.2"), inner, dim, true),
+            norm_joint_last,
+            attn_joint_last,
+            norm2,
+            attn2,
+            norm3,
+            ff_proj,
+            ff_out,
             views: s.views,
         }
     }
@@ -219,17 +237,24 @@ impl TransformerBlock {
     fn forward(&self, x: Tensor<3>, context: &Tensor<3>) -> Tensor<3> {
         let attn1 = &self.attn1;
         let x = within_views(self.norm1.forward(x.clone()), self.views, |t| attn1.forward(t, None)) + x;
-        let x = match (&self.norm_joint_mid, &self.attn_joint_mid) {
-            (Some(norm), Some(attn)) => across_domains(norm.forward(x.clone()), |t| attn.forward(t, None)) + x,
-            _ => x,
-        };
+        let x = joint_attention(x, self.norm_joint_mid.as_ref(), self.attn_joint_mid.as_ref());
         let x = self.attn2.forward(self.norm2.forward(x.clone()), Some(context)) + x;
         let h = self.ff_proj.forward(self.norm3.forward(x.clone()));
         let [b, t, two_inner] = h.dims();
         let inner = two_inner / 2;
         let hidden = h.clone().slice([0..b, 0..t, 0..inner]);
         let gate = h.slice([0..b, 0..t, inner..two_inner]);
-        self.ff_out.forward(hidden * gelu(gate)) + x
+        let x = self.ff_out.forward(hidden * gelu(gate)) + x;
+        joint_attention(x, self.norm_joint_last.as_ref(), self.attn_joint_last.as_ref())
+    }
+}
+
+/// The residual cross-domain attention step `x + attn(norm(x))` (the attention joint over both
+/// domains' tokens of a view, see [`across_domains`]), or `x` when the block has none there.
+fn joint_attention(x: Tensor<3>, norm: Option<&LayerNorm>, attn: Option<&Attention>) -> Tensor<3> {
+    match (norm, attn) {
+        (Some(norm), Some(attn)) => across_domains(norm.forward(x.clone()), |t| attn.forward(t, None)) + x,
+        _ => x,
     }
 }
 
@@ -286,8 +311,12 @@ pub(crate) struct TransformerShape {
     pub linear_projection: bool,
     /// Images per multi-view attention group (1: plain self-attention).
     pub views: usize,
-    /// Whether the blocks have the cross-domain attention.
-    pub cross_domain: bool,
+    /// Whether the blocks have the cross-domain attention after the self-attention
+    /// (`attn_joint_mid`).
+    pub cross_domain_mid: bool,
+    /// Whether the blocks have the cross-domain attention after the feed-forward
+    /// (`attn_joint_last`).
+    pub cross_domain_last: bool,
 }
 
 impl SpatialTransformer {

@@ -2,7 +2,9 @@
 //! they are shipped in a checkpoint directory (`unet/`, `vae/`, `image_encoder/`, `scheduler/`).
 //!
 //! Fields a file omits take the default value of the Python class constructor (that is what
-//! diffusers does too). Values this implementation does not support are rejected by
+//! diffusers does too), except that a multi-view UNet config lacking a field the authors'
+//! inference script passes explicitly gets the authors' value ([`AUTHORS_INFERENCE_UNET_KWARGS`],
+//! reported on stderr and in [`UNetConfig::applied_overrides`]). Values this implementation does not support are rejected by
 //! `validate` with an error naming the field, never silently ignored.
 
 use std::path::Path;
@@ -182,8 +184,11 @@ pub struct UNetConfig {
     /// every multi-view transformer block. The batch is then `[normal half, colour half]`.
     #[serde(default)]
     pub cd_attention_mid: bool,
-    /// Wonder3D: cross-domain attention after the feed-forward (unsupported: off in every
-    /// shipped config).
+    /// Wonder3D: a second cross-domain attention (`attn_joint_last`, `norm_joint_last`) after
+    /// the feed-forward of every multi-view transformer block, the same layer as
+    /// `cd_attention_mid`'s (absent: false, the `UNetMV2DConditionModel` default; false in every
+    /// shipped config, and the authors' inference script does not set it). The batch is then
+    /// `[normal half, colour half]`.
     #[serde(default)]
     pub cd_attention_last: bool,
     /// Wonder3D: sparse multi-view attention (unsupported: off in every shipped config).
@@ -200,6 +205,57 @@ pub struct UNetConfig {
     /// `reverse_transformer_layers_per_block`.
     #[serde(flatten)]
     pub other: serde_json::Map<String, serde_json::Value>,
+    /// Fields the multi-view `config.json` lacked (absent or `null`) and that
+    /// [`UNetConfig::from_value`] filled with the authors' inference value
+    /// ([`AUTHORS_INFERENCE_UNET_KWARGS`]), in that table's order. Empty for a single-view
+    /// config or one that states every such field.
+    #[serde(skip)]
+    pub applied_overrides: Vec<InferenceOverride>,
+    /// Fields the multi-view `config.json` sets to another value than the authors' inference
+    /// script passes: kept as written, and reported because the authors' run uses their value.
+    #[serde(skip)]
+    pub differs_from_authors: Vec<ConfigDifference>,
+}
+
+/// The UNet keyword arguments of the authors' inference config (Wonder3D++
+/// `configs/mvdiffusion-joint.yaml`, `unet_from_pretrained_kwargs`) that shape the network,
+/// as JSON text. `run_mv_prediction.py` passes them to `UNetMV2DConditionModel.from_pretrained`
+/// on top of the checkpoint's `config.json`, so the model the authors run has these values
+/// whatever the file says. The same kwargs also hold `camera_embedding_type: e_de_da_sincos`
+/// (the switcher encoding, fixed in [`crate::multiview::switcher_labels`]) and
+/// `zero_init_conv_in` / `zero_init_camera_projection: false` (initialisation only, void
+/// when weights are loaded); `cd_attention_last` is not among them, so it keeps its class
+/// default, false.
+pub const AUTHORS_INFERENCE_UNET_KWARGS: &[(&str, &str)] = &[
+    ("num_views", "6"),
+    ("sample_size", "32"),
+    ("projection_class_embeddings_input_dim", "14"),
+    ("cd_attention_mid", "true"),
+    ("multiview_attention", "true"),
+    ("sparse_mv_attention", "false"),
+    ("mvcd_attention", "false"),
+];
+
+/// A field of a multi-view UNet `config.json` filled with the authors' inference value
+/// because the file lacked it (see [`UNetConfig::applied_overrides`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct InferenceOverride {
+    /// The config field, e.g. `num_views`.
+    pub field: &'static str,
+    /// The value used.
+    pub value: serde_json::Value,
+}
+
+/// A field of a multi-view UNet `config.json` whose value differs from the authors' inference
+/// value (see [`UNetConfig::differs_from_authors`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ConfigDifference {
+    /// The config field.
+    pub field: &'static str,
+    /// The value in the file (the one used).
+    pub file: serde_json::Value,
+    /// The value the authors' inference script passes.
+    pub authors: serde_json::Value,
 }
 
 /// Options of `UNet2DConditionModel` that must keep their default value, with the accepted values.
@@ -221,12 +277,80 @@ fn unsupported(field: &str, value: impl std::fmt::Debug, expected: &str) -> Erro
 }
 
 impl UNetConfig {
-    /// Parses `unet/config.json`.
+    /// Parses `unet/config.json` ([`UNetConfig::from_value`]) and, for a multi-view config
+    /// whose file lacks some of the authors' inference values or states others, prints one
+    /// line per kind to stderr naming the fields and values ([`UNetConfig::override_notes`]):
+    /// a checkpoint's `config.json` alone does not describe the model the authors run.
     pub fn from_file(path: impl AsRef<Path>) -> Result<Self, Error> {
         let path = path.as_ref();
-        let config: Self = read_json(path)?;
-        config.validate().map_err(|e| e.in_file(path))?;
+        let value: serde_json::Value = read_json(path)?;
+        let config = Self::from_value(value).map_err(|e| e.in_file(path))?;
+        for line in config.override_notes(&path.display().to_string()) {
+            eprintln!("{line}");
+        }
         Ok(config)
+    }
+
+    /// Parses and validates a UNet config. A multi-view config (`_class_name`
+    /// `UNetMV2DConditionModel` or a multi-view block type) gets every field of
+    /// [`AUTHORS_INFERENCE_UNET_KWARGS`] it lacks (absent or `null`) set to the authors' value,
+    /// recorded in [`UNetConfig::applied_overrides`]; a field it states is kept as written and,
+    /// when it differs from the authors' value, recorded in
+    /// [`UNetConfig::differs_from_authors`]. A single-view config is parsed as it is.
+    pub fn from_value(mut value: serde_json::Value) -> Result<Self, Error> {
+        let object = value.as_object_mut().ok_or_else(|| Error::invalid("config", "a JSON object"))?;
+        let mut applied = Vec::new();
+        let mut differs = Vec::new();
+        if json_is_multiview(object) {
+            for &(field, text) in AUTHORS_INFERENCE_UNET_KWARGS {
+                let authors: serde_json::Value = serde_json::from_str(text)
+                    .map_err(|e| Error::invalid(field, format!("a JSON value in the override table ({e})")))?;
+                match object.get(field) {
+                    None | Some(serde_json::Value::Null) => {
+                        object.insert(field.to_string(), authors.clone());
+                        applied.push(InferenceOverride { field, value: authors });
+                    }
+                    Some(file) if !json_equal(file, &authors) => {
+                        differs.push(ConfigDifference { field, file: file.clone(), authors });
+                    }
+                    Some(_) => {}
+                }
+            }
+        }
+        let mut config: Self = serde_json::from_value(value)
+            .map_err(|e| Error::invalid("config", format!("a valid UNet config ({e})")))?;
+        config.applied_overrides = applied;
+        config.differs_from_authors = differs;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// The stderr lines [`UNetConfig::from_file`] prints for `source` (the file's name): one
+    /// for the fields filled with the authors' inference values, one for the fields whose
+    /// value differs from theirs; none when there is nothing to say.
+    pub fn override_notes(&self, source: &str) -> Vec<String> {
+        let mut notes = Vec::new();
+        if !self.applied_overrides.is_empty() {
+            let fields: Vec<&str> = self.applied_overrides.iter().map(|o| o.field).collect();
+            let values: Vec<String> = self.applied_overrides.iter().map(|o| o.value.to_string()).collect();
+            notes.push(format!(
+                "w3d-diffusion: {source} lacks {}: using the authors' inference values {}",
+                fields.join(", "),
+                values.join(", ")
+            ));
+        }
+        if !self.differs_from_authors.is_empty() {
+            let items: Vec<String> = self
+                .differs_from_authors
+                .iter()
+                .map(|d| format!("{} = {} (authors' inference: {})", d.field, d.file, d.authors))
+                .collect();
+            notes.push(format!(
+                "w3d-diffusion: {source} sets {}: keeping the file's values, so this model differs from the authors' run",
+                items.join(", ")
+            ));
+        }
+        notes
     }
 
     /// Checks that every field holds a supported value.
@@ -265,11 +389,8 @@ impl UNetConfig {
         if self.num_views == Some(0) {
             return Err(Error::invalid("num_views", "at least 1"));
         }
-        for (field, on) in [
-            ("cd_attention_last", self.cd_attention_last),
-            ("sparse_mv_attention", self.sparse_mv_attention),
-            ("mvcd_attention", self.mvcd_attention),
-        ] {
+        for (field, on) in [("sparse_mv_attention", self.sparse_mv_attention), ("mvcd_attention", self.mvcd_attention)]
+        {
             if on {
                 return Err(unsupported(field, true, "false"));
             }
@@ -364,6 +485,12 @@ impl UNetConfig {
         }
     }
 
+    /// Whether the multi-view blocks have a cross-domain attention (`cd_attention_mid` or
+    /// `cd_attention_last`), so that the batch is `[normal half, colour half]`.
+    pub fn cross_domain(&self) -> bool {
+        self.cd_attention_mid || self.cd_attention_last
+    }
+
     /// Views per object in the batch (`num_views`, 1 when absent).
     pub fn views(&self) -> usize {
         self.num_views.unwrap_or(1)
@@ -386,6 +513,28 @@ impl UNetConfig {
     /// Width of the time embedding (4 × the first block's channels).
     pub fn time_embed_dim(&self) -> usize {
         self.block_out_channels[0] * 4
+    }
+}
+
+/// Whether a UNet config object describes Wonder3D's multi-view `UNetMV2DConditionModel`:
+/// its class name, or any block type that is a multi-view variant.
+fn json_is_multiview(object: &serde_json::Map<String, serde_json::Value>) -> bool {
+    if object.get("_class_name").and_then(|v| v.as_str()) == Some("UNetMV2DConditionModel") {
+        return true;
+    }
+    ["down_block_types", "up_block_types"]
+        .iter()
+        .filter_map(|k| object.get(*k).and_then(|v| v.as_array()))
+        .flatten()
+        .chain(object.get("mid_block_type"))
+        .any(|v| v.as_str().is_some_and(UNetConfig::is_multiview_block))
+}
+
+/// JSON equality that treats numbers by value (`32` equals `32.0`, as Python's would).
+fn json_equal(a: &serde_json::Value, b: &serde_json::Value) -> bool {
+    match (a.as_f64(), b.as_f64()) {
+        (Some(x), Some(y)) => x == y,
+        _ => a == b,
     }
 }
 

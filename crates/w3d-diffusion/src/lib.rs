@@ -4,10 +4,13 @@
 //! sampling with classifier-free guidance and DDIM inversion (exactly as diffusers), and
 //! streaming `.safetensors` loading with the diffusers / transformers key names. The UNet is
 //! also Wonder3D++'s multi-view cross-domain `UNetMV2DConditionModel` (config fields
-//! `num_views`, `cd_attention_mid`), and [`MultiViewPipeline`] turns one RGBA image into 6 views
+//! `num_views`, `cd_attention_mid`, `cd_attention_last`; a multi-view `config.json` lacking a
+//! field the authors' inference passes explicitly gets their value, see
+//! [`UNetConfig::from_value`]), and [`MultiViewPipeline`] turns one RGBA image into 6 views
 //! × {normal, colour} and a `w3d_core::ViewSet` ([`multiview`]).
 //!
-//! Configs deserialize the `config.json` files of a diffusers checkpoint directory as they are;
+//! Configs deserialize the `config.json` files of a diffusers checkpoint directory as they are
+//! (apart from those multi-view defaults);
 //! weights load from f32, f16 or bf16 safetensors and every missing, unexpected or misshaped key
 //! is reported by name. Models run on any Burn device: [`default_device`] is the faster CPU
 //! backend (`flex`); `Device::ndarray()` is the product's CPU test backend; the `wgpu` feature
@@ -41,9 +44,13 @@ pub mod weights;
 
 pub use burn::tensor::{Device, Tensor, TensorData};
 pub use clip::{CLIP_MEAN, CLIP_STD, ClipVision, preprocess as clip_preprocess};
-pub use config::{ClipVisionConfig, PerBlock, SchedulerConfig, UNetConfig, VaeConfig};
+pub use config::{
+    AUTHORS_INFERENCE_UNET_KWARGS, ClipVisionConfig, ConfigDifference, InferenceOverride, PerBlock, SchedulerConfig,
+    UNetConfig, VaeConfig,
+};
 pub use multiview::{
-    CameraType, Conditioning, Domain, GeneratedViews, MultiViewPipeline, SampleOptions, prepare_input, switcher_labels,
+    CameraType, Conditioning, Domain, GeneratedViews, MultiViewPipeline, SampleOptions, prepare_input, quantize_u8,
+    switcher_labels,
 };
 pub use scheduler::{
     DdimInverseScheduler, DdimScheduler, Prediction, classifier_free_guidance, ddim_invert, ddim_sample, gaussian_noise,

@@ -1,15 +1,17 @@
 //! Wonder3D++ multi-view generation: one RGBA image in, 6 views × {normal, colour} out.
 //!
-//! The steps follow the design reference `wonder3d.md` §0-§4:
+//! The steps follow the authors' Wonder3D++ inference (`run.py`, `run_mv_prediction.py` and
+//! their pipeline; `docs/weights.md` describes the model directory):
 //! 1. [`prepare_input`]: crop to the alpha bounding box, scale the object's longest side to
-//!    75 % of the model's image side, centre it and composite it over white.
+//!    75 % of the model's image side, centre it, composite it over white and truncate it to
+//!    8 bits as the authors' pipeline does ([`quantize_u8`]).
 //! 2. [`MultiViewPipeline::condition`]: the CLIP image embedding (one token) and the VAE latent
-//!    mode (× `scaling_factor`) of that image.
+//!    mode (× `scaling_factor`) of that 8-bit image.
 //! 3. [`MultiViewPipeline::sample_from`]: DDIM with classifier-free guidance over the batch
 //!    `[normal × 6 views, colour × 6 views]`, the domain / camera switchers as class labels
 //!    ([`switcher_labels`]), one initial noise per view shared by both domains; the guided
 //!    batch is `[normal uncond, normal cond, colour uncond, colour cond]` so the cross-domain
-//!    attention pairs unconditional with unconditional (the reference's 2024-08-29 fix); the
+//!    attention pairs unconditional with unconditional (the authors' 2024-08-29 fix); the
 //!    unconditional branch has a zero embedding and a zero latent.
 //! 4. [`MultiViewPipeline::decode`]: VAE decode, `x / 2 + 0.5` clamped to `[0, 1]`;
 //!    [`GeneratedViews::to_view_set`] turns the images into a [`ViewSet`] in the rig's frame.
@@ -48,8 +50,9 @@ use crate::vae::Vae;
 pub const NUM_VIEWS: usize = 6;
 
 /// The model's view labels `(d_elev, d_azim)` in radians, in rig order. These are fixed
-/// labels the model was trained with, not the true camera angles (`wonder3d.md` §2, §9).
-// The values as the reference tabulates them (6 decimals; 3.141593 is its rounding of π).
+/// labels the model was trained with, not the true camera angles: the authors derive them
+/// from tilted pose files, and the model only knows these values.
+// The values the authors' dataset code computes from its pose files, to 6 decimals (3.141593 is π rounded).
 #[allow(clippy::approx_constant, clippy::excessive_precision)]
 pub const VIEW_LABELS: [(f32, f32); NUM_VIEWS] = [
     (0.000000, 0.000000),
@@ -89,7 +92,7 @@ pub enum CameraType {
 }
 
 impl CameraType {
-    /// The 6-view rig of this camera type (the geometric rig of `DESIGN.md` §3).
+    /// The 6-view rig of this camera type (`w3d_core::ViewRig`'s Wonder3D rigs).
     pub fn rig(self) -> ViewRig {
         match self {
             CameraType::Orthographic => ViewRig::wonder3d_ortho(),
@@ -141,10 +144,35 @@ pub fn switcher_labels(domain: Domain, camera: CameraType, input_dim: usize) -> 
     Ok(labels)
 }
 
+/// The 8-bit level the authors' pipeline turns a composited input value `v` (nominally in
+/// `[0, 1]`) into. Their inference casts the composited image to half precision and hands it
+/// to the pipeline as a tensor, which converts it to a PIL image with torchvision's
+/// `to_pil_image` (`mul(255).byte()`): `trunc(f16(f16(v) · 255))`. That is truncation (floor,
+/// the values being non-negative), not rounding, computed in f16 — about 4 % of uniformly
+/// spread values land one level higher than `floor(255 v)` in f32 would give. CLIP's
+/// preprocessing and the VAE both start from this 8-bit image. Values outside `[0, 1]` are
+/// clamped first (the authors clip the composite); NaN gives 0.
+///
+/// ```
+/// use w3d_diffusion::multiview::quantize_u8;
+///
+/// assert_eq!(quantize_u8(100.6 / 255.0), 100); // truncated, not rounded to 101
+/// assert_eq!(quantize_u8(0.909_746_2), 232); // f16 arithmetic: floor(255 v) in f32 is 231
+/// assert_eq!(quantize_u8(1.0), 255);
+/// assert!((0..=255).all(|k| quantize_u8(k as f32 / 255.0) == k as u8)); // levels are fixed points
+/// ```
+pub fn quantize_u8(v: f32) -> u8 {
+    let v = half::f16::from_f32(v.clamp(0.0, 1.0));
+    // The product of an f16 and 255 is exact in f32; rounding it to f16 is the f16 multiply.
+    half::f16::from_f32(v.to_f32() * 255.0).to_f32() as u8
+}
+
 /// Wonder3D's input preprocessing: crops `rgba` (4 channels, values in `[0, 1]`, straight
 /// alpha) to the bounding box of its non-zero alpha, scales it (premultiplied, bilinear with
 /// antialiasing) so its longest side is [`OBJECT_FRACTION`] of `size`, centres it on a
-/// `size × size` canvas and composites it over white. Returns the RGB image (3 channels).
+/// `size × size` canvas, composites it over white and truncates it to 8 bits as the authors'
+/// pipeline does ([`quantize_u8`]). Returns the RGB image (3 channels, every value a multiple
+/// of 1/255).
 pub fn prepare_input(rgba: &Image, size: u32) -> Result<Image, Error> {
     if rgba.channels() != 4 {
         return Err(Error::invalid(
@@ -191,7 +219,7 @@ pub fn prepare_input(rgba: &Image, size: u32) -> Result<Image, Error> {
             let a = p[3].clamp(0.0, 1.0);
             let dst = out.pixel_mut(ox + x, oy + y);
             for c in 0..3 {
-                dst[c] = (p[c] + (1.0 - a)).clamp(0.0, 1.0);
+                dst[c] = f32::from(quantize_u8(p[c] + (1.0 - a))) / 255.0;
             }
         }
     }
@@ -210,11 +238,11 @@ pub struct Conditioning {
 /// Sampling options.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SampleOptions {
-    /// DDIM steps (reference default 50).
+    /// DDIM steps (the authors' default 50).
     pub steps: usize,
     /// Classifier-free guidance scale (Wonder3D++ default 2; 1 runs no unconditional branch).
     pub guidance: f64,
-    /// DDIM eta: 0 deterministic, 1 the reference's fully stochastic sampling.
+    /// DDIM eta: 0 deterministic, 1 the authors' fully stochastic sampling.
     pub eta: f64,
     /// Camera type of the generated views.
     pub camera: CameraType,
@@ -389,17 +417,20 @@ impl MultiViewPipeline {
     }
 
     /// The conditions of `rgb` (3 channels, `image_size²`, values in `[0, 1]`, white
-    /// background: the output of [`prepare_input`]).
+    /// background: the output of [`prepare_input`]). As in the authors' pipeline, the image is
+    /// first truncated to 8 bits ([`quantize_u8`]; values already on 8-bit levels stay): CLIP
+    /// preprocesses the 8-bit image, the VAE encodes `level / 255`.
     pub fn condition(&self, rgb: &Image, device: &Device) -> Result<Conditioning, Error> {
         let s = self.image_size as u32;
         rgb.expect_shape("input image", s, s, 3)?;
         let n = self.image_size;
-        let values255: Vec<f32> = rgb.data().iter().map(|v| v * 255.0).collect();
+        let levels: Vec<f32> = rgb.data().iter().map(|&v| f32::from(quantize_u8(v))).collect();
         let size = self.clip.config().image_size;
-        let pixels = clip_preprocess(&values255, n, n, size)?;
+        let pixels = clip_preprocess(&levels, n, n, size)?;
         let pixels = Tensor::<4>::from_data(TensorData::new(pixels, [1, 3, size, size]), device);
         let embeds = self.clip.image_embeds(pixels)?;
-        let chw: Tensor<3> = Tensor::from_data(TensorData::new(rgb.data().to_vec(), [n, n, 3]), device);
+        let unit: Vec<f32> = levels.iter().map(|v| v / 255.0).collect();
+        let chw: Tensor<3> = Tensor::from_data(TensorData::new(unit, [n, n, 3]), device);
         let image = chw.permute([2, 0, 1]).reshape([1, 3, n, n]) * 2.0 - 1.0;
         let latent = self.vae.encode_mean(image)? * self.vae.config().scaling_factor;
         Ok(Conditioning { embeds, latent })
@@ -489,7 +520,7 @@ impl MultiViewPipeline {
 
     /// DDIM sampling from `noise` down to clean latents `[12, c, h, w]` (`[normal × 6,
     /// colour × 6]`). `noise` is `[6, c, h, w]` (one latent per view, shared by both domains,
-    /// as the reference samples) or `[12, c, h, w]` (per domain, e.g. from
+    /// as the authors sample) or `[12, c, h, w]` (per domain, e.g. from
     /// [`MultiViewPipeline::invert`]). `progress(done, total)` is called after every step.
     pub fn sample_from(
         &self,

@@ -8,15 +8,21 @@
 //!
 //! Wonder3D's `UNetMV2DConditionModel` is the same network with multi-view block types
 //! (`CrossAttnDownBlockMV2D`, `UNetMidBlockMV2DCrossAttn`, `CrossAttnUpBlockMV2D`) and the
-//! config fields `num_views` and `cd_attention_mid` (design reference `wonder3d.md` §1.2-§1.3):
-//! - batch layout: `[normal half, colour half]` when `cd_attention_mid`, each half made of
-//!   groups of `num_views` consecutive images (one object, views in rig order);
+//! config fields `num_views`, `cd_attention_mid` and `cd_attention_last` (`docs/weights.md`
+//! lists the fields and weight keys):
+//! - batch layout: `[normal half, colour half]` with a cross-domain attention, each half made
+//!   of groups of `num_views` consecutive images (one object, views in rig order);
 //! - multi-view attention: each image's self-attention attends over the tokens of all images
 //!   of its group (no new weights);
-//! - cross-domain attention (`attn_joint_mid`, `norm_joint_mid`): after the self-attention,
-//!   image `i` of each half attends over the tokens of image `i` of both halves. Random
-//!   (fresh-training) initialisation zeroes its output projection's weight, so it starts as
-//!   the identity;
+//! - cross-domain attention (`attn_joint_mid`, `norm_joint_mid`, with `cd_attention_mid`):
+//!   after the self-attention of every multi-view transformer block, image `i` of each half
+//!   attends over the tokens of image `i` of both halves (pre-norm, residual). Random
+//!   (fresh-training) initialisation zeroes its output projection's weight, so it starts
+//!   without cross-domain mixing (it adds only its output bias; the identity when that bias
+//!   is zero too);
+//! - with `cd_attention_last` the same layer (`attn_joint_last`, `norm_joint_last`) follows
+//!   the feed-forward of every multi-view transformer block as well (off in every shipped
+//!   Wonder3D config; older checkpoints name it `attn_joint` / `norm_joint`);
 //! - the domain / camera switchers enter as the projection class embedding (see
 //!   [`crate::multiview::switcher_labels`]).
 
@@ -114,7 +120,8 @@ impl UNet {
                 groups,
                 linear_projection: c.use_linear_projection,
                 views: if multiview && c.multiview_attention { c.views() } else { 1 },
-                cross_domain: multiview && c.cd_attention_mid,
+                cross_domain_mid: multiview && c.cd_attention_mid,
+                cross_domain_last: multiview && c.cd_attention_last,
             })
         };
         let conv_in = Conv2d::load(p, "conv_in", c.in_channels, ch[0], 3, 1, 1, true);
@@ -248,13 +255,13 @@ impl UNet {
             return Err(Error::invalid("sample", format!("height and width multiples of {multiple} (found {h}x{w})")));
         }
         let views = if c.multiview_attention { c.views() } else { 1 };
-        let group = if c.cd_attention_mid { 2 * views } else { views };
+        let group = if c.cross_domain() { 2 * views } else { views };
         if !n.is_multiple_of(group) {
             return Err(Error::invalid(
                 "sample",
                 format!(
                     "a batch of whole groups of {group} images ({}{views} views each; found {n})",
-                    if c.cd_attention_mid { "normal and colour halves of " } else { "" }
+                    if c.cross_domain() { "normal and colour halves of " } else { "" }
                 ),
             ));
         }
@@ -321,7 +328,13 @@ impl UNet {
     }
 }
 
-/// Renames keys of older Wonder3D checkpoints to the current names (wonder3d.md §1.3).
+/// Renames keys of older Wonder3D checkpoints to the current names, as the authors' loader
+/// does: `attn_joint` / `norm_joint` were the cross-domain attention after the feed-forward
+/// (now `…_last`), `attn_joint_twice` / `norm_joint_twice` the one after the self-attention
+/// (now `…_mid`).
 fn rename_legacy_unet_key(key: &str) -> String {
-    key.replace(".attn_joint_twice.", ".attn_joint_mid.").replace(".norm_joint_twice.", ".norm_joint_mid.")
+    key.replace(".attn_joint_twice.", ".attn_joint_mid.")
+        .replace(".norm_joint_twice.", ".norm_joint_mid.")
+        .replace(".attn_joint.", ".attn_joint_last.")
+        .replace(".norm_joint.", ".norm_joint_last.")
 }

@@ -3,7 +3,9 @@
 //! the design reference), on a tiny checkpoint with the real key names: UNet forward for both
 //! camera types (both domains in each batch), the switcher labels, a 5-step guided pipeline,
 //! view-permutation equivariance, the domain switcher, the fresh cross-domain initialisation,
-//! legacy key names, seeding, inversion, input preprocessing and the view-set conversion.
+//! legacy key names, seeding, inversion, input preprocessing and the view-set conversion; the
+//! second cross-domain attention (`cd_attention_last`, its own tiny checkpoint and reference
+//! forward), the authors' inference values for a config that lacks them, and the 8-bit input.
 
 mod common;
 
@@ -407,4 +409,289 @@ fn model_directory_problems_are_named() {
     std::fs::write(&config_path, config).unwrap();
     let m = MultiViewPipeline::from_dir(dir.path(), &device).unwrap_err().to_string();
     assert!(m.contains("num_views") && m.contains("found 1"), "{m}");
+}
+
+/// A copy of the UNet folder `fixture(src)` in a temporary directory: every tensor goes through
+/// `edit(key, values)` (`None` drops it, `Some(name)` stores it as f32 under `name`) and the
+/// config text through `config`.
+fn edited_unet(
+    src: &str,
+    edit: impl Fn(&str, &mut Vec<f32>) -> Option<String>,
+    config: impl Fn(String) -> String,
+) -> tempfile::TempDir {
+    let dir = tempfile::tempdir().unwrap();
+    let mut file = SafetensorsFile::open(fixture(&format!("{src}/diffusion_pytorch_model.safetensors"))).unwrap();
+    let keys: Vec<String> = file.shapes().map(|(k, _)| k.to_string()).collect();
+    let mut tensors: Vec<(String, Vec<u8>, Vec<usize>)> = Vec::new();
+    for key in keys {
+        let (mut values, shape) = file.read_f32(&key).unwrap();
+        if let Some(name) = edit(&key, &mut values) {
+            tensors.push((name, values.iter().flat_map(|v| v.to_le_bytes()).collect(), shape));
+        }
+    }
+    let views: Vec<(String, safetensors::tensor::TensorView)> = tensors
+        .iter()
+        .map(|(k, b, s)| {
+            (k.clone(), safetensors::tensor::TensorView::new(safetensors::Dtype::F32, s.clone(), b).unwrap())
+        })
+        .collect();
+    safetensors::serialize_to_file(views, None, &dir.path().join("diffusion_pytorch_model.safetensors")).unwrap();
+    let text = std::fs::read_to_string(fixture(&format!("{src}/config.json"))).unwrap();
+    std::fs::write(dir.path().join("config.json"), config(text)).unwrap();
+    dir
+}
+
+fn unet_last_io() -> SafetensorsFile {
+    SafetensorsFile::open(fixture("multiview/unet_last_io.safetensors")).unwrap()
+}
+
+/// The `cd_attention_last` fixture's forward on `unet`, with the colour half of the sample
+/// multiplied by `colour_scale`.
+fn last_forward(unet: &UNet, colour_scale: f32) -> Tensor<4> {
+    let device = w3d_diffusion::default_device();
+    let mut io = unet_last_io();
+    let sample: Tensor<4> = tensor(&mut io, "sample", &device);
+    let sample = Tensor::cat(
+        vec![sample.clone().slice([0..6, 0..8, 0..8, 0..8]), sample.slice([6..12, 0..8, 0..8, 0..8]) * colour_scale],
+        0,
+    );
+    unet.forward(sample, &[421.0], tensor(&mut io, "context", &device), Some(tensor(&mut io, "class_labels", &device)))
+        .unwrap()
+}
+
+fn normal_half(t: Tensor<4>) -> Tensor<4> {
+    t.slice([0..6, 0..4, 0..8, 0..8])
+}
+
+#[test]
+fn cd_attention_last_unet_matches_the_reference() {
+    for (name, device) in test_devices() {
+        let unet = UNet::from_dir(fixture("wonder3d_tiny_last/unet"), &device).unwrap();
+        assert!(unet.config().cd_attention_last && unet.config().cd_attention_mid);
+        let mut io = unet_last_io();
+        let out = unet
+            .forward(
+                tensor(&mut io, "sample", &device),
+                &values(tensor::<1>(&mut io, "timesteps", &device)),
+                tensor(&mut io, "context", &device),
+                Some(tensor(&mut io, "class_labels", &device)),
+            )
+            .unwrap();
+        let expected: Tensor<4> = tensor(&mut io, "out", &device);
+        let (err, scale) = (max_abs_diff(out, expected.clone()), max_abs(expected));
+        println!("{name} cd_attention_last: max-abs error {err:.2e} (output max {scale:.2})");
+        assert!(err <= 1e-4, "{name}: max-abs error {err}");
+    }
+}
+
+#[test]
+fn cd_attention_last_loads_its_keys_mixes_the_domains_and_is_the_identity_when_zeroed() {
+    let device = w3d_diffusion::default_device();
+    let src = "wonder3d_tiny_last/unet";
+    let keep = |k: &str, _: &mut Vec<f32>| Some(k.to_string());
+    let same = |c: String| c;
+    let without_last = |c: String| c.replace("\"cd_attention_last\": true", "\"cd_attention_last\": false");
+    let is_last = |k: &str| k.contains(".attn_joint_last.") || k.contains(".norm_joint_last.");
+    let is_out = |k: &str, which: &str| k.contains(&format!(".attn_joint_{which}.to_out.0."));
+
+    // The checkpoint holds the extra keys: a config without cd_attention_last rejects them.
+    let dir = edited_unet(src, keep, without_last);
+    let m = UNet::from_dir(dir.path(), &device).unwrap_err().to_string();
+    assert!(m.contains("attn_joint_last") && m.contains("norm_joint_last"), "{m}");
+    let full = UNet::from_dir(fixture(src), &device).unwrap();
+
+    // The same network without the last joint attention: the joint attention changes the output.
+    let dir = edited_unet(src, |k, _| (!is_last(k)).then(|| k.to_string()), without_last);
+    let plain = UNet::from_dir(dir.path(), &device).unwrap();
+    let diff = max_abs_diff(last_forward(&full, 1.0), last_forward(&plain, 1.0));
+    assert!(diff > 1e-3, "attn_joint_last changed the output by only {diff}");
+
+    // With a zero output projection (weight and bias) it is exactly the identity.
+    let zero_last = |k: &str, v: &mut Vec<f32>| {
+        if is_out(k, "last") {
+            v.iter_mut().for_each(|x| *x = 0.0);
+        }
+        Some(k.to_string())
+    };
+    let dir = edited_unet(src, zero_last, same);
+    let zeroed = UNet::from_dir(dir.path(), &device).unwrap();
+    assert_eq!(values(last_forward(&zeroed, 1.0)), values(last_forward(&plain, 1.0)));
+
+    // It mixes the domains: with the mid joint attention silenced (zero output projection),
+    // the normal half's output follows the colour half's input only through attn_joint_last.
+    let zero_mid = |k: &str, v: &mut Vec<f32>| {
+        if is_out(k, "mid") {
+            v.iter_mut().for_each(|x| *x = 0.0);
+        }
+        Some(k.to_string())
+    };
+    let dir = edited_unet(src, zero_mid, same);
+    let last_only = UNet::from_dir(dir.path(), &device).unwrap();
+    let leak = max_abs_diff(normal_half(last_forward(&last_only, 1.0)), normal_half(last_forward(&last_only, -1.0)));
+    assert!(leak > 1e-3, "attn_joint_last ignores the other domain ({leak})");
+    let zero_both = |k: &str, v: &mut Vec<f32>| {
+        if is_out(k, "mid") || is_out(k, "last") {
+            v.iter_mut().for_each(|x| *x = 0.0);
+        }
+        Some(k.to_string())
+    };
+    let dir = edited_unet(src, zero_both, same);
+    let neither = UNet::from_dir(dir.path(), &device).unwrap();
+    let leak = max_abs_diff(normal_half(last_forward(&neither, 1.0)), normal_half(last_forward(&neither, -1.0)));
+    assert!(leak <= 1e-6, "the domains mix without any joint attention ({leak})");
+
+    // Older checkpoints call it attn_joint / norm_joint.
+    let legacy = |k: &str, _: &mut Vec<f32>| {
+        Some(k.replace(".attn_joint_last.", ".attn_joint.").replace(".norm_joint_last.", ".norm_joint."))
+    };
+    let dir = edited_unet(src, legacy, same);
+    let renamed = UNet::from_dir(dir.path(), &device).unwrap();
+    assert_eq!(values(last_forward(&renamed, 1.0)), values(last_forward(&full, 1.0)));
+}
+
+#[test]
+fn fresh_cd_attention_last_does_not_mix_the_domains() {
+    let device = w3d_diffusion::default_device();
+    let config = UNetConfig::from_file(fixture("wonder3d_tiny_last/unet/config.json")).unwrap();
+    let fresh = UNet::random(&config, 5, &device).unwrap();
+    let leak = max_abs_diff(normal_half(last_forward(&fresh, 1.0)), normal_half(last_forward(&fresh, -1.0)));
+    assert!(leak <= 1e-6, "fresh joint attentions leak across domains ({leak})");
+}
+
+/// The authors' inference UNet kwargs that `config.json` may lack.
+const AUTHORS_FIELDS: [&str; 7] = [
+    "num_views",
+    "sample_size",
+    "projection_class_embeddings_input_dim",
+    "cd_attention_mid",
+    "multiview_attention",
+    "sparse_mv_attention",
+    "mvcd_attention",
+];
+
+fn tiny_unet_config_json() -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(fixture("wonder3d_tiny/unet/config.json")).unwrap()).unwrap()
+}
+
+#[test]
+fn a_multiview_config_lacking_the_authors_inference_values_gets_them_and_says_so() {
+    let mut json = tiny_unet_config_json();
+    let object = json.as_object_mut().unwrap();
+    for field in AUTHORS_FIELDS {
+        object.remove(field);
+    }
+    object.insert("num_views".into(), serde_json::Value::Null); // null counts as lacking
+    let config = UNetConfig::from_value(json).unwrap();
+    let applied: Vec<(&str, String)> =
+        config.applied_overrides.iter().map(|o| (o.field, o.value.to_string())).collect();
+    let expected: Vec<(&str, String)> = AUTHORS_FIELDS
+        .iter()
+        .zip(["6", "32", "14", "true", "true", "false", "false"])
+        .map(|(f, v)| (*f, v.to_string()))
+        .collect();
+    assert_eq!(applied, expected);
+    assert!(config.differs_from_authors.is_empty());
+    assert_eq!(
+        (config.views(), config.sample_size, config.projection_class_embeddings_input_dim, config.cd_attention_mid),
+        (6, Some(32), Some(14), true)
+    );
+    assert!(config.multiview_attention && !config.sparse_mv_attention && !config.mvcd_attention);
+    assert_eq!(
+        config.override_notes("unet/config.json"),
+        ["w3d-diffusion: unet/config.json lacks num_views, sample_size, projection_class_embeddings_input_dim, \
+          cd_attention_mid, multiview_attention, sparse_mv_attention, mvcd_attention: using the authors' inference \
+          values 6, 32, 14, true, true, false, false"]
+    );
+}
+
+#[test]
+fn a_config_that_states_the_fields_is_kept_as_written() {
+    // The tiny checkpoint states every field; its sample_size (8) is not the authors' 32.
+    let json = tiny_unet_config_json();
+    let config = UNetConfig::from_value(json.clone()).unwrap();
+    assert!(config.applied_overrides.is_empty());
+    let differs: Vec<(&str, String, String)> =
+        config.differs_from_authors.iter().map(|d| (d.field, d.file.to_string(), d.authors.to_string())).collect();
+    assert_eq!(differs, [("sample_size", "8".to_string(), "32".to_string())]);
+    let as_written: UNetConfig = serde_json::from_value(json).unwrap();
+    assert_eq!(UNetConfig { differs_from_authors: Vec::new(), ..config.clone() }, as_written);
+    let notes = config.override_notes("cfg.json");
+    assert_eq!(notes.len(), 1);
+    assert!(notes[0].contains("sample_size = 8 (authors' inference: 32)"), "{notes:?}");
+    // A single-view Stable Diffusion config gets nothing.
+    let single = UNetConfig::from_file(fixture("unet/config.json")).unwrap();
+    assert!(single.applied_overrides.is_empty() && single.differs_from_authors.is_empty());
+    assert!(single.override_notes("x").is_empty());
+}
+
+#[test]
+fn a_model_directory_whose_unet_config_lacks_the_multiview_fields_loads_as_the_authors_run_it() {
+    let device = w3d_diffusion::default_device();
+    let dir = tiny_copy();
+    let config_path = dir.path().join("unet/config.json");
+    let mut json: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&config_path).unwrap()).unwrap();
+    for field in ["num_views", "cd_attention_mid"] {
+        json.as_object_mut().unwrap().remove(field);
+    }
+    std::fs::write(&config_path, serde_json::to_string_pretty(&json).unwrap()).unwrap();
+    let pipeline = MultiViewPipeline::from_dir(dir.path(), &device).unwrap();
+    let applied: Vec<&str> = pipeline.unet().config().applied_overrides.iter().map(|o| o.field).collect();
+    assert_eq!(applied, ["num_views", "cd_attention_mid"]);
+    // The same network as the complete config: identical predictions.
+    let reference = MultiViewPipeline::from_dir(fixture("wonder3d_tiny"), &device).unwrap();
+    let mut io = unet_io();
+    let run = |p: &MultiViewPipeline, io: &mut SafetensorsFile| {
+        p.unet()
+            .forward(
+                tensor(io, "sample", &device),
+                &[421.0],
+                tensor(io, "context", &device),
+                Some(tensor(io, "class_labels_ortho", &device)),
+            )
+            .unwrap()
+    };
+    assert_eq!(values(run(&pipeline, &mut io)), values(run(&reference, &mut io)));
+}
+
+#[test]
+fn input_preprocessing_truncates_to_8_bits_like_the_authors() {
+    // 40×40, all object: the left half opaque, the right half at alpha 0.5 (composited over
+    // white: 0.3 · 0.5 + 0.5 = 0.65). No value lies on an 8-bit level.
+    let mut rgba = Image::filled(40, 40, 4, 0.0).unwrap();
+    for y in 0..40 {
+        for x in 0..40 {
+            let p = if x < 20 { [100.6 / 255.0, 0.909_746_2, 0.3 / 255.0, 1.0] } else { [0.3, 0.3, 0.3, 0.5] };
+            rgba.pixel_mut(x, y).copy_from_slice(&p);
+        }
+    }
+    let out = prepare_input(&rgba, 32).unwrap();
+    assert!(out.data().iter().all(|v| (v * 255.0 - (v * 255.0).round()).abs() < 1e-4), "off an 8-bit level");
+    let level = |x: u32, y: u32| out.pixel(x, y).iter().map(|v| (v * 255.0).round() as u8).collect::<Vec<_>>();
+    // Torch's half-precision `to_pil_image` gives these levels (checked with torch 2.4.1 and
+    // torchvision 0.19.1): truncation, so 100.6 → 100 (not 101) and 165.75 → 165 (not 166);
+    // and f16 arithmetic, so 0.9097462 → 232 where floor(255 x) in f32 is 231.
+    assert_eq!(level(8, 16), [100, 232, 0]);
+    assert_eq!(level(23, 16), [165, 165, 165]);
+    assert_eq!(level(0, 0), [255, 255, 255]);
+}
+
+#[test]
+fn conditioning_sees_the_8_bit_image() {
+    let device = w3d_diffusion::default_device();
+    let pipeline = MultiViewPipeline::from_dir(fixture("wonder3d_tiny"), &device).unwrap();
+    let mut io = pipeline_io();
+    let input = fixture_input(&mut io); // 8-bit levels
+    let shifted = |delta: f32| {
+        let data = input.data().iter().map(|v| (v + delta).clamp(0.0, 1.0)).collect();
+        Image::new(input.width(), input.height(), 3, data).unwrap()
+    };
+    let base = pipeline.condition(&input, &device).unwrap();
+    // A third of a level above every level: the same 8-bit image, the same conditions.
+    let up = pipeline.condition(&shifted(0.3 / 255.0), &device).unwrap();
+    assert_eq!(values(up.embeds), values(base.embeds.clone()));
+    assert_eq!(values(up.latent), values(base.latent.clone()));
+    // A third of a level below: truncation drops each non-zero level by one.
+    let down = pipeline.condition(&shifted(-0.3 / 255.0), &device).unwrap();
+    let change = max_abs_diff(down.latent, base.latent).max(max_abs_diff(down.embeds, base.embeds));
+    assert!(change > 1e-4, "one level lower changed the conditions by only {change}");
 }
