@@ -4,7 +4,7 @@
 //! Everything here is plain data: slices of `[f32; 3]` positions and `[u32; 3]`
 //! counter-clockwise triangles, `[H][W][C]` row-major float images, and `glam` vectors for
 //! small math. The canonical frame is right-handed and y-up, with the input (front)
-//! camera on +z looking along −z (see `DESIGN.md` §3).
+//! camera on +z looking along −z (see `docs/architecture.md`).
 //!
 //! ```
 //! use w3d_core::{Mesh, ViewRig};
@@ -32,6 +32,7 @@ pub mod image;
 mod intersect;
 pub mod io;
 pub mod mesh;
+pub mod normals;
 pub mod rig;
 pub mod viewset;
 
