@@ -44,6 +44,7 @@ mod intersect;
 #[cfg(feature = "io")]
 pub mod io;
 pub mod mesh;
+pub mod normals;
 pub mod rig;
 pub mod viewset;
 

@@ -206,37 +206,21 @@ impl Mesh {
         })
     }
 
-    /// Per-triangle unit normals (zero for zero-area triangles).
+    /// Per-triangle unit normals (zero for zero-area triangles); see [`crate::normals`].
     pub fn face_normals(&self) -> Vec<[f32; 3]> {
-        (0..self.triangles.len())
-            .map(|t| {
-                let [a, b, c] = self.triangle_corners(t);
-                (b - a).cross(c - a).normalize_or_zero().to_array()
-            })
-            .collect()
+        crate::normals::unit_face_normals(&self.positions, &self.triangles)
     }
 
     /// Per-vertex unit normals: the area-weighted average of the adjacent face normals
-    /// (zero for vertices with no non-degenerate face).
+    /// (zero for vertices with no non-degenerate face); see [`crate::normals`].
     pub fn vertex_normals(&self) -> Vec<[f32; 3]> {
-        let mut acc = vec![Vec3::ZERO; self.positions.len()];
-        for (t, tri) in self.triangles.iter().enumerate() {
-            let [a, b, c] = self.triangle_corners(t);
-            let n = (b - a).cross(c - a); // length = 2·area
-            for &v in tri {
-                acc[v as usize] += n;
-            }
-        }
-        acc.into_iter().map(|n| n.normalize_or_zero().to_array()).collect()
+        crate::normals::vertex_normals(&self.positions, &self.triangles)
     }
 
     /// Total surface area (in squared mesh units).
     pub fn surface_area(&self) -> f64 {
         (0..self.triangles.len())
-            .map(|t| {
-                let [a, b, c] = self.triangle_corners(t).map(|v| v.as_dvec3());
-                0.5 * (b - a).cross(c - a).length()
-            })
+            .map(|t| 0.5 * crate::normals::face_normal(&self.positions, self.triangles[t]).length())
             .sum()
     }
 

@@ -63,8 +63,8 @@ pub fn sample_surface(mesh: &Mesh, count: usize, seed: u64) -> Result<SurfaceSam
         (0..mesh.triangle_count()).map(|t| mesh.triangle_corners(t).map(|v| v.as_dvec3())).collect();
     let mut cdf = Vec::with_capacity(corners.len());
     let mut total = 0.0f64;
-    for [a, b, c] in &corners {
-        total += 0.5 * (*b - *a).cross(*c - *a).length();
+    for &t in mesh.triangles() {
+        total += 0.5 * w3d_core::normals::face_normal(mesh.positions(), t).length();
         cdf.push(total);
     }
     if total <= 0.0 || !total.is_finite() {

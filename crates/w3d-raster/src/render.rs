@@ -27,18 +27,10 @@ pub fn rasterize_rig(mesh: &Mesh, rig: &ViewRig, size: u32) -> Result<Vec<Raster
     rasterize_views(mesh.positions(), mesh.triangles(), &cameras, size, size)
 }
 
-/// Unit normals per vertex, area-weighted over all vertices sharing the position.
+/// Unit normals per vertex, area-weighted over all vertices sharing the position
+/// ([`w3d_core::normals::welded_vertex_normals`]), flattened to `x, y, z` per vertex.
 fn welded_vertex_normals(mesh: &Mesh) -> Vec<f32> {
-    let weld = w3d_core::mesh::weld_by_position(mesh.positions());
-    let mut acc = vec![Vec3::ZERO; mesh.vertex_count()];
-    for (t, tri) in mesh.triangles().iter().enumerate() {
-        let [a, b, c] = mesh.triangle_corners(t);
-        let n = (b - a).cross(c - a);
-        for &v in tri {
-            acc[weld[v as usize] as usize] += n;
-        }
-    }
-    weld.iter().flat_map(|&w| acc[w as usize].normalize_or_zero().to_array()).collect()
+    w3d_core::normals::welded_vertex_normals(mesh.positions(), mesh.triangles()).into_iter().flatten().collect()
 }
 
 fn image(raster: &Raster, channels: u32, data: Vec<f32>) -> Result<Image> {

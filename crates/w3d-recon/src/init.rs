@@ -737,9 +737,12 @@ fn marching_tetrahedra(grid: &Grid, field: &[f32]) -> Result<Option<Mesh>> {
                     };
                     let outward = centre(&outside) - centre(&inside);
                     let mut emit = |tri: [u32; 3], positions: &[[f32; 3]]| {
-                        let [a, b, c] = tri.map(|v| Vec3::from(positions[v as usize]));
-                        let normal = (b - a).cross(c - a);
-                        triangles.push(if normal.dot(outward) >= 0.0 { tri } else { [tri[0], tri[2], tri[1]] });
+                        let normal = w3d_core::normals::face_normal(positions, tri);
+                        triangles.push(if normal.dot(outward.as_dvec3()) >= 0.0 {
+                            tri
+                        } else {
+                            [tri[0], tri[2], tri[1]]
+                        });
                     };
                     match inside.len() {
                         1 => {

@@ -1,5 +1,9 @@
 //! Area-weighted vertex normals and their backward pass.
 //!
+//! The forward definition is the workspace's one, [`w3d_core::normals`]; this module adds
+//! the index check and the backward pass, written against that definition (same face
+//! normals, same f64 sums, same degenerate-case rule [`unit_and_length`]).
+//!
 //! Normal losses compare rendered normals with target normal maps. The rendered normals
 //! are interpolated *vertex normals*, which are functions of the vertex positions; this
 //! module gives the exact gradient of those normals with respect to the positions, so a
@@ -7,32 +11,21 @@
 //! only slides colours across pixels).
 
 use glam::DVec3;
+use w3d_core::normals::{face_normal, unit_and_length, vertex_normal_sums};
 use w3d_core::{Error, Result};
 
-/// Unit vertex normals: for each vertex the normalised sum of the (unnormalised, area
-/// weighted) cross products `(b − a) × (c − a)` of its triangles. Vertices whose sum is
-/// zero get a zero normal. Positions in any frame; normals are in the same frame.
+/// Unit area-weighted vertex normals ([`w3d_core::normals::vertex_normals`]: for each
+/// vertex the normalised sum of the unnormalised cross products `(b − a) × (c − a)` of its
+/// triangles; zero where that sum is zero), after checking the indices. Positions in any
+/// frame; normals are in the same frame.
 pub fn vertex_normals(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Result<Vec<[f32; 3]>> {
     w3d_core::mesh::validate_geometry(positions, triangles)?;
-    Ok(normal_sums(positions, triangles)
-        .into_iter()
-        .map(|n| {
-            let len = n.length();
-            if len > 0.0 { (n / len).as_vec3().to_array() } else { [0.0; 3] }
-        })
-        .collect())
+    Ok(w3d_core::normals::vertex_normals(positions, triangles))
 }
 
+/// The per-vertex sums that [`vertex_normals`] normalises.
 fn normal_sums(positions: &[[f32; 3]], triangles: &[[u32; 3]]) -> Vec<DVec3> {
-    let mut sums = vec![DVec3::ZERO; positions.len()];
-    for t in triangles {
-        let [a, b, c] = t.map(|i| glam::Vec3::from(positions[i as usize]).as_dvec3());
-        let n = (b - a).cross(c - a);
-        for &v in t {
-            sums[v as usize] += n;
-        }
-    }
-    sums
+    vertex_normal_sums(positions.len(), triangles.iter().map(|&t| (t, face_normal(positions, t))))
 }
 
 /// Backward of [`vertex_normals`]: given `grad_normals` = ∂L/∂(unit normal) per vertex,
@@ -54,18 +47,17 @@ pub fn vertex_normals_backward(
         .into_iter()
         .zip(grad_normals)
         .map(|(n, g)| {
-            let len = n.length();
-            if len == 0.0 {
-                return DVec3::ZERO;
-            }
-            let (u, g) = (n / len, glam::Vec3::from(*g).as_dvec3());
+            // The forward's degenerate case (zero normal) passes no gradient.
+            let Some((u, len)) = unit_and_length(n) else { return DVec3::ZERO };
+            let g = glam::Vec3::from(*g).as_dvec3();
             (g - u * u.dot(g)) / len
         })
         .collect();
     let mut grad = vec![DVec3::ZERO; positions.len()];
     for t in triangles {
         let [a, b, c] = t.map(|i| glam::Vec3::from(positions[i as usize]).as_dvec3());
-        // The face's cross product c_f = e1 × e2 feeds all three corner sums.
+        // The face's cross product c_f = e1 × e2 (`face_normal`, in the same f64 from the
+        // same corners) feeds all three corner sums.
         let g: DVec3 = t.iter().map(|&v| grad_sums[v as usize]).sum();
         let (e1, e2) = (b - a, c - a);
         // d(G·(e1 × e2)) = de1·(e2 × G) + de2·(G × e1).

@@ -27,7 +27,7 @@
 use std::collections::HashMap;
 
 use glam::Vec3;
-use w3d_core::{Mesh, Result, self_intersections, self_intersections_involving};
+use w3d_core::{Mesh, Result, normals, self_intersections, self_intersections_involving};
 
 /// What [`untangle`] did.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -150,8 +150,9 @@ fn separation_moves(positions: &[[f32; 3]], triangles: &[[u32; 3]], pairs: &[[u3
     for &[a, b] in pairs {
         // (cost, moving triangle, direction, distance per corner)
         let mut best: Option<(f32, u32, Vec3, [f32; 3])> = None;
-        for (mover, p, q) in [(a, corners(a), corners(b)), (b, corners(b), corners(a))] {
-            let normal = (q[1] - q[0]).cross(q[2] - q[0]).normalize_or_zero();
+        for (mover, other) in [(a, b), (b, a)] {
+            let (p, q) = (corners(mover), corners(other));
+            let normal = normals::face_normal(positions, triangles[other as usize]).normalize_or_zero().as_vec3();
             if normal == Vec3::ZERO {
                 continue; // a degenerate triangle has no plane
             }

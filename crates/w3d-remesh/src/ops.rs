@@ -6,7 +6,8 @@
 //! index, and the only random choice (which edge of a flagged face to collapse) is a hash
 //! of a seed and the face index, so the same input and seed give the same bytes.
 
-use glam::Vec3;
+use glam::{DVec3, Vec3};
+use w3d_core::normals;
 
 use crate::edges::{EdgeTable, NONE};
 use crate::rows::{VertexRows, mean3};
@@ -143,39 +144,6 @@ fn v3(p: [f32; 3]) -> Vec3 {
     Vec3::from(p)
 }
 
-/// Unnormalised face normals `cross(p1 − p0, p2 − p0)` (length = twice the area); zero for
-/// deleted faces.
-pub fn face_normals(positions: &[[f32; 3]], faces: &[[u32; 3]], alive: &[bool]) -> Vec<Vec3> {
-    faces
-        .iter()
-        .zip(alive)
-        .map(|(t, &live)| {
-            if !live {
-                return Vec3::ZERO;
-            }
-            let [a, b, c] = t.map(|i| v3(positions[i as usize]));
-            (b - a).cross(c - a)
-        })
-        .collect()
-}
-
-/// Unit vertex normals: the area-weighted sum of the adjacent face normals, divided by
-/// `max(|sum|, 1e-6)`.
-pub fn vertex_normals(num_vertices: usize, faces: &[[u32; 3]], alive: &[bool], face_normals: &[Vec3]) -> Vec<Vec3> {
-    let mut sum = vec![Vec3::ZERO; num_vertices];
-    for ((t, &live), n) in faces.iter().zip(alive).zip(face_normals) {
-        if live {
-            for &v in t {
-                sum[v as usize] += *n;
-            }
-        }
-    }
-    for n in &mut sum {
-        *n /= n.length().max(1e-6);
-    }
-    sum
-}
-
 /// Whether an edge flip would fold the surface: one of the two new faces `edits`
 /// (`(face index, new corners)`) comes out **degenerate** (zero area) or **flipped**, or an
 /// untouched face next to them becomes flipped (positions do not change).
@@ -186,10 +154,7 @@ pub fn vertex_normals(num_vertices: usize, faces: &[[u32; 3]], alive: &[bool], f
 /// before the flip come from `table`, after it from `edits` first. Untouched faces that
 /// were already flipped may stay flipped, so a flip next to a fold is not blocked by it.
 fn flip_folds(positions: &[[f32; 3]], faces: &[[u32; 3]], table: &EdgeTable, edits: &[(u32, [u32; 3]); 2]) -> bool {
-    let unit_normal = |t: [u32; 3]| {
-        let [a, b, c] = t.map(|v| v3(positions[v as usize]));
-        (b - a).cross(c - a).normalize_or_zero()
-    };
+    let unit_normal = |t: [u32; 3]| normals::face_normal(positions, t).normalize_or_zero();
     let edited = |f: u32| edits.iter().any(|e| e.0 == f);
     // The face before the flip that runs along `b → a`.
     let old_across = |a: u32, b: u32| {
@@ -206,7 +171,7 @@ fn flip_folds(positions: &[[f32; 3]], faces: &[[u32; 3]], table: &EdgeTable, edi
         old_across(a, b).filter(|&g| !edited(g)).map(|g| (g, faces[g as usize]))
     };
     let old_flipped = |f: u32, t: [u32; 3]| {
-        let around: Vec3 = (0..3)
+        let around: DVec3 = (0..3)
             .filter_map(|k| old_across(t[k], t[(k + 1) % 3]))
             .filter(|&g| g != f)
             .map(|g| unit_normal(faces[g as usize]))
@@ -214,7 +179,7 @@ fn flip_folds(positions: &[[f32; 3]], faces: &[[u32; 3]], table: &EdgeTable, edi
         unit_normal(t).dot(around) < 0.0
     };
     let new_flipped = |f: u32, t: [u32; 3]| {
-        let around: Vec3 = (0..3)
+        let around: DVec3 = (0..3)
             .filter_map(|k| new_across(t[k], t[(k + 1) % 3]))
             .filter(|&(g, _)| g != f)
             .map(|(_, tg)| unit_normal(tg))
@@ -223,7 +188,7 @@ fn flip_folds(positions: &[[f32; 3]], faces: &[[u32; 3]], table: &EdgeTable, edi
     };
     edits.iter().any(|&(f, t_new)| {
         let t = faces[f as usize];
-        unit_normal(t_new) == Vec3::ZERO
+        unit_normal(t_new) == DVec3::ZERO
             || new_flipped(f, t_new)
             || (0..3).any(|k| {
                 old_across(t[k], t[(k + 1) % 3]).is_some_and(|g| {
@@ -245,10 +210,11 @@ fn mix(mut z: u64) -> u64 {
 /// Flags the edges that flagged faces want collapsed (reference A.5a).
 ///
 /// A face is flagged when it is **flipped** (its normal points against the sum of its
-/// corners' vertex normals) or **small** (area below `area_ratio · m²`, `m` the mean of
-/// `min_edge_length` over its corners). A flagged face picks its shortest edge with
-/// probability `shortest_probability`, else its middle or longest edge (equal odds); the
-/// draw is a hash of `seed` and the face index. Ties in length keep local edge order.
+/// corners' unit vertex normals, both as defined in [`w3d_core::normals`]) or **small**
+/// (area below `area_ratio · m²`, `m` the mean of `min_edge_length` over its corners). A
+/// flagged face picks its shortest edge with probability `shortest_probability`, else its
+/// middle or longest edge (equal odds); the draw is a hash of `seed` and the face index.
+/// Ties in length keep local edge order.
 #[allow(clippy::too_many_arguments)]
 pub fn face_collapse_flags(
     positions: &[[f32; 3]],
@@ -260,8 +226,17 @@ pub fn face_collapse_flags(
     params: &RemeshParams,
     seed: u64,
 ) -> Vec<bool> {
-    let normals = face_normals(positions, faces, alive);
-    let vnormals = vertex_normals(positions.len(), faces, alive, &normals);
+    // Face normals (length = twice the area) and unit vertex normals of the live faces.
+    let face_normals: Vec<DVec3> = faces
+        .iter()
+        .zip(alive)
+        .map(|(&t, &live)| if live { normals::face_normal(positions, t) } else { DVec3::ZERO })
+        .collect();
+    let live_faces = faces.iter().zip(&face_normals).zip(alive).filter(|&(_, &live)| live);
+    let vnormals: Vec<DVec3> = normals::vertex_normal_sums(positions.len(), live_faces.map(|((&t, &n), _)| (t, n)))
+        .into_iter()
+        .map(normals::unit_or_zero)
+        .collect();
     let p = params.shortest_probability;
     // Draws r in [0, randlim) and takes position min(r, 2) of the edges sorted by length,
     // longest first: position 2 (the shortest) has probability 1 − 2 / randlim = p.
@@ -271,11 +246,11 @@ pub fn face_collapse_flags(
         if !alive[f] {
             continue;
         }
-        let n = normals[f];
-        let reference: Vec3 = t.iter().map(|&v| vnormals[v as usize]).sum();
+        let n = face_normals[f];
+        let reference: DVec3 = t.iter().map(|&v| vnormals[v as usize]).sum();
         let flipped = n.dot(reference) < 0.0;
         let m = t.iter().map(|&v| min_edge_length[v as usize]).sum::<f32>() / 3.0;
-        let small = n.length() < 2.0 * params.area_ratio * m * m;
+        let small = n.length() < f64::from(2.0 * params.area_ratio * m * m);
         if !(flipped || small) {
             continue;
         }
@@ -389,10 +364,7 @@ pub fn remove_valence3_vertices(
         let k = t.iter().position(|&c| c == v).unwrap_or(0);
         [t[(k + 1) % 3], t[(k + 2) % 3]]
     };
-    let normal = |t: [u32; 3]| {
-        let [a, b, c] = t.map(|i| v3(positions[i as usize]));
-        (b - a).cross(c - a)
-    };
+    let normal = |t: [u32; 3]| normals::face_normal(positions, t);
     let mut touched = vec![false; num_vertices];
     let mut removed = 0;
     for (i, &v) in vertices.iter().enumerate() {
@@ -422,7 +394,7 @@ pub fn remove_valence3_vertices(
         }
         // The new face may not be folded: zero-area, or flipped against the faces across
         // its edges (the outer faces of the fan, untouched so far).
-        let mut around = Vec3::ZERO;
+        let mut around = DVec3::ZERO;
         for (x, y) in [(a, b), (b, c), (c, a)] {
             let Some(e) = table.find(x, y) else { continue };
             for half in table.edge_to_face[e] {
@@ -432,7 +404,7 @@ pub fn remove_valence3_vertices(
             }
         }
         let new = normal([a, b, c]).normalize_or_zero();
-        if new == Vec3::ZERO || new.dot(around) < 0.0 {
+        if new == DVec3::ZERO || new.dot(around) < 0.0 {
             continue;
         }
         faces[f0 as usize] = [a, b, c];
@@ -732,19 +704,16 @@ fn face_across(table: &EdgeTable, f: u32, k: usize) -> u32 {
 /// points against the sum of the unit normals of the faces across its three edges (missing
 /// ones on a boundary count as zero).
 fn is_folded(positions: &[[f32; 3]], faces: &[[u32; 3]], table: &EdgeTable, f: u32) -> bool {
-    let unit = |g: u32| {
-        let [a, b, c] = faces[g as usize].map(|v| v3(positions[v as usize]));
-        (b - a).cross(c - a).normalize_or_zero()
-    };
+    let unit = |g: u32| normals::face_normal(positions, faces[g as usize]).normalize_or_zero();
     let n = unit(f);
-    let mut around = Vec3::ZERO;
+    let mut around = DVec3::ZERO;
     for k in 0..3 {
         let g = face_across(table, f, k);
         if g != NONE {
             around += unit(g);
         }
     }
-    n == Vec3::ZERO || n.dot(around) < 0.0
+    n == DVec3::ZERO || n.dot(around) < 0.0
 }
 
 /// Untangles folds by moving vertices (not in the reference): positions only, no topology
@@ -765,14 +734,8 @@ pub fn relax_folds<R: VertexRows>(rows: &mut R, faces: &[[u32; 3]], table: &Edge
     // A face can only be flipped if it points away from one of its neighbours, so the full
     // test runs on those few (and on zero-area faces).
     let positions = rows.positions();
-    let raw: Vec<Vec3> = faces
-        .iter()
-        .map(|t| {
-            let a = v3(positions[t[0] as usize]);
-            (v3(positions[t[1] as usize]) - a).cross(v3(positions[t[2] as usize]) - a)
-        })
-        .collect();
-    let mut suspect: Vec<bool> = raw.iter().map(|&n| n == Vec3::ZERO).collect();
+    let raw = normals::face_normals(positions, faces);
+    let mut suspect: Vec<bool> = raw.iter().map(|&n| n == DVec3::ZERO).collect();
     for [left, right] in &table.edge_to_face {
         if *left != NONE && *right != NONE {
             let (f, g) = (*left as usize / 3, *right as usize / 3);

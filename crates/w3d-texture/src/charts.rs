@@ -35,11 +35,11 @@ impl Surface {
             welded[w as usize] = DVec3::from(glam::Vec3::from(*p));
         }
         let tris: Vec<[u32; 3]> = triangles.iter().map(|t| t.map(|v| weld[v as usize])).collect();
-        let (normals, areas): (Vec<DVec3>, Vec<f64>) = tris
+        // The welded corners are the input corners, so the input triangles give the faces.
+        let (normals, areas): (Vec<DVec3>, Vec<f64>) = triangles
             .iter()
-            .map(|t| {
-                let [a, b, c] = t.map(|v| welded[v as usize]);
-                let n = (b - a).cross(c - a);
+            .map(|&t| {
+                let n = w3d_core::normals::face_normal(positions, t);
                 (n.normalize_or_zero(), 0.5 * n.length())
             })
             .unzip();

@@ -137,15 +137,12 @@ pub(crate) struct WeldedColours {
     pub seen: Vec<bool>,
 }
 
-/// Area-weighted unit normals of the welded vertices.
+/// Area-weighted unit normals of the welded vertices: the vertex normals
+/// ([`w3d_core::normals::vertex_normals`]) of the welded surface.
 pub(crate) fn welded_normals(surface: &Surface) -> Vec<Vec3> {
-    let mut acc = vec![glam::DVec3::ZERO; surface.positions.len()];
-    for (t, (&n, &a)) in surface.triangles.iter().zip(surface.normals.iter().zip(&surface.areas)) {
-        for &v in t {
-            acc[v as usize] += n * a;
-        }
-    }
-    acc.into_iter().map(|n| n.normalize_or_zero().as_vec3()).collect()
+    // Exact: the welded positions are the input's f32 positions.
+    let positions: Vec<[f32; 3]> = surface.positions.iter().map(|p| p.as_vec3().to_array()).collect();
+    w3d_core::normals::vertex_normals(&positions, &surface.triangles).into_iter().map(Vec3::from).collect()
 }
 
 /// Fuses the views into welded-vertex colours (weighted mean of the views that see each

@@ -194,10 +194,11 @@ pub fn samples(positions: &[[f32; 3]], faces: &[[u32; 3]]) -> Vec<Vec3> {
     out
 }
 
-/// Unnormalised face normal `cross(p1 − p0, p2 − p0)` (length = twice the area).
+/// Unnormalised face normal `cross(p1 − p0, p2 − p0)` (length = twice the area), as the
+/// remesh operations compute it ([`w3d_core::normals::face_normal`]), rounded to `f32`
+/// (zero exactly where theirs is).
 pub fn face_normal(positions: &[[f32; 3]], t: [u32; 3]) -> Vec3 {
-    let [a, b, c] = t.map(|v| Vec3::from(positions[v as usize]));
-    (b - a).cross(c - a)
+    w3d_core::normals::face_normal(positions, t).as_vec3()
 }
 
 /// Flipped faces of a consistently oriented mesh: a face is flipped when its unit normal
