@@ -32,8 +32,10 @@ pub struct DemoArgs {
 /// Runs `wonder3d demo`.
 pub fn run(args: &DemoArgs) -> Result<()> {
     check_parent(&args.out)?;
-    let options =
-        DemoOptions::default().with_preset(args.preset.into()).with_view_size(args.size).with_texture_size(args.texture_size);
+    let options = DemoOptions::default()
+        .with_preset(args.preset.into())
+        .with_view_size(args.size)
+        .with_texture_size(args.texture_size);
     let bar = progress::bar(args.quiet)?;
     let demo = run_demo(&options, &mut progress::follow(&bar))?;
     bar.finish_and_clear();

@@ -5,11 +5,11 @@
 use std::path::PathBuf;
 
 use serde_json::{Value, json};
-use wonder3d::{Mesh, Result, load_mesh};
 use wonder3d::eval::{
     EvalOptions, IcpOptions, MeshMetrics, Similarity, VisibleOptions, align_icp_scale, evaluate,
     visible_surface_chamfer,
 };
+use wonder3d::{Mesh, Result, load_mesh};
 
 /// Arguments of `wonder3d eval`.
 #[derive(clap::Args)]

@@ -36,11 +36,15 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
     }
     let views = ViewSet::load(&args.views)?;
     let bar = progress::bar(args.quiet)?;
-    let output = Pipeline::new().with_preset(args.preset.into()).without_texture().from_views(&views, &mut progress::follow(&bar))?;
+    let output = Pipeline::new()
+        .with_preset(args.preset.into())
+        .without_texture()
+        .from_views(&views, &mut progress::follow(&bar))?;
     bar.finish_and_clear();
     output.save(&args.out)?;
     if let Some(path) = &args.report {
-        let json = serde_json::to_vec_pretty(&output.report.reconstruction).map_err(|e| Error::invalid("report", e.to_string()))?;
+        let json = serde_json::to_vec_pretty(&output.report.reconstruction)
+            .map_err(|e| Error::invalid("report", e.to_string()))?;
         write_atomic(path, |w| std::io::Write::write_all(w, &json).map_err(|e| Error::io(path, e)))?;
     }
     let r = &output.report;

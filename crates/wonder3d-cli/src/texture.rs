@@ -52,11 +52,11 @@ pub fn run(args: &TextureArgs) -> Result<()> {
         mesh.normalize_unit_cube();
     }
     let views = ViewSet::load(&args.views)?;
-    let mut options = TextureOptions::default();
-    options.size = args.size;
-    options.padding = args.padding;
-    options.dilation = args.dilation;
-    options.view_weight_exponent = args.exponent;
+    let options = TextureOptions::default()
+        .with_size(args.size)
+        .with_padding(args.padding)
+        .with_dilation(args.dilation)
+        .with_view_weight_exponent(args.exponent);
     if args.vertex_colours {
         let fused = fuse_vertex_colours(&mesh, &views, &options)?;
         save_mesh(&args.out, &fused.mesh)?;

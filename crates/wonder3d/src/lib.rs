@@ -48,8 +48,7 @@ pub mod sheet;
 #[cfg(feature = "diffusion")]
 pub use generate::{Generated, Generator};
 pub use pipeline::{
-    GenerationReport, Output, Pipeline, Progress, Report, Seconds, Stage, TextureStage, check_mesh_output,
-    check_parent,
+    GenerationReport, Output, Pipeline, Progress, Report, Seconds, Stage, TextureStage, check_mesh_output, check_parent,
 };
 /// Meshes, cameras, view rigs, images, view sets and file IO (the `w3d-core` crate).
 pub use w3d_core as core;

@@ -279,9 +279,7 @@ impl Pipeline {
 
     /// Side of the square baked texture in texels (texturing on, other options kept).
     pub fn with_texture_size(mut self, size: u32) -> Self {
-        let mut options = self.texture.unwrap_or_default();
-        options.size = size;
-        self.texture = Some(options);
+        self.texture = Some(self.texture.unwrap_or_default().with_size(size));
         self
     }
 

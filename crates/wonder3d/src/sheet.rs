@@ -169,13 +169,13 @@ mod tests {
 
     #[test]
     fn labels_are_drawn_and_images_placed() {
-        let red = Image::new(2, 2, 4, [1.0, 0.0, 0.0, 1.0].repeat(4)).unwrap();
+        let red = Image::new(16, 16, 4, [1.0, 0.0, 0.0, 1.0].repeat(256)).unwrap();
         let rows = [SheetRow { label: "ab".into(), images: vec![red.clone(), red] }];
         let sheet = contact_sheet(&["x"], &rows).unwrap();
         // margin: 2 glyphs × 6 + 2 × 4 padding = 20 px; top line 7 + 8 = 15 px.
-        assert_eq!((sheet.width(), sheet.height()), (24, 17));
+        assert_eq!((sheet.width(), sheet.height()), (20 + 2 * 16, 15 + 16));
         assert_eq!(sheet.pixel(20, 15), &[1.0, 0.0, 0.0]);
-        assert_eq!(sheet.pixel(23, 16), &[1.0, 0.0, 0.0]);
+        assert_eq!(sheet.pixel(51, 30), &[1.0, 0.0, 0.0]);
         let dark = sheet.data().chunks_exact(3).filter(|p| p == &[0.0, 0.0, 0.0]).count();
         assert!(dark > 10, "the labels left {dark} black pixels");
     }
