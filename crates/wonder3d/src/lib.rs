@@ -13,7 +13,7 @@
 //! ```
 //! use wonder3d::{Pipeline, Preset, ViewRig};
 //!
-//! # let dir = tempfile::tempdir()?;
+//! # let dir = tempfile::tempdir().unwrap();
 //! # let path = dir.path().join("views");
 //! # let spot = wonder3d::demo::bundled_spot()?;
 //! # wonder3d::raster::render_oracle_views(&spot, &ViewRig::wonder3d_ortho(), 96)?.save(&path)?;
