@@ -77,12 +77,8 @@ mod with_model {
             CameraArg::Ortho => CameraType::Orthographic,
             CameraArg::Persp => CameraType::Perspective,
         };
-        let mut options = SampleOptions::default();
-        options.steps = args.steps;
-        options.guidance = args.guidance;
-        options.eta = args.eta;
-        options.camera = camera;
-        options.seed = args.seed;
+        let options =
+            SampleOptions { steps: args.steps, guidance: args.guidance, eta: args.eta, camera, seed: args.seed };
         Ok(Generator::load(&args.weights)?.with_options(options))
     }
 
