@@ -51,6 +51,7 @@ pub struct GenerateArgs {
 }
 
 /// Fails unless `dir` can become an output folder (not an existing file; its parent exists).
+#[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
 pub fn check_out_dir(dir: &Path) -> Result<()> {
     if dir.is_file() {
         return Err(Error::invalid(format!("output {}", dir.display()), "a folder, but it is a file"));
