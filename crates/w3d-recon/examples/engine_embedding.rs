@@ -64,6 +64,7 @@ fn main() -> w3d_core::Result<()> {
         mesh.topology().genus(),
         report.seconds
     );
-    assert!(mesh.topology().is_watertight() && worst < 0.02, "the extraction should recover the ellipsoid");
+    // A pixel of the 128² views spans 1.5 / 128 ≈ 0.012 world units: ask for 2.5 pixels at worst.
+    assert!(mesh.topology().is_watertight() && worst < 0.03, "the extraction should recover the ellipsoid");
     Ok(())
 }
