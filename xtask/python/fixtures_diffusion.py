@@ -9,6 +9,9 @@ cross-domain attention after the feed-forward (`cd_attention_last`) and one forw
 and saves configs, weights, inputs and outputs under crates/w3d-diffusion/tests/fixtures.
 Needs torch, diffusers, transformers, safetensors, pillow.
 
+`python fixtures_diffusion.py dpm_solver` writes only `dpm_solver.safetensors` (DPM-Solver++(2M)
+timesteps, σ and 10-step trajectories of a closed-form stand-in model, as
+`DPMSolverMultistepScheduler.from_config(DDIMScheduler(...).config)`).
 `python fixtures_diffusion.py cd_attention_last` writes only the `cd_attention_last` fixtures
 (`wonder3d_tiny_last/`, `multiview/unet_last_io.safetensors`): the other fixtures' outputs
 move in the last bits between torch / transformers versions, so they need not be rewritten to
@@ -23,7 +26,13 @@ import types
 import numpy as np
 import torch
 import torch.nn.functional as F
-from diffusers import AutoencoderKL, DDIMInverseScheduler, DDIMScheduler, UNet2DConditionModel
+from diffusers import (
+    AutoencoderKL,
+    DDIMInverseScheduler,
+    DDIMScheduler,
+    DPMSolverMultistepScheduler,
+    UNet2DConditionModel,
+)
 from PIL import Image
 from safetensors.torch import save_file
 from transformers import CLIPImageProcessor, CLIPVisionConfig, CLIPVisionModelWithProjection
@@ -543,8 +552,54 @@ def cd_attention_last_fixtures():
     )
 
 
+def dpm_solver_fixture():
+    """DPM-Solver++(2M) built from a DDIM config, as users swap schedulers in diffusers."""
+    gen = torch.Generator().manual_seed(5)
+    out = {}
+
+    def dpm(**extra):
+        return DPMSolverMultistepScheduler.from_config(DDIMScheduler(**{**SD, **extra}).config)
+
+    for name, extra, steps in [
+        ("leading20", {}, 20),
+        ("leading50", {}, 50),
+        ("leading1", {}, 1),
+        ("trailing7", {"timestep_spacing": "trailing", "steps_offset": 0}, 7),
+        ("linspace13", {"timestep_spacing": "linspace", "steps_offset": 0}, 13),
+    ]:
+        s = dpm(**extra)
+        s.set_timesteps(steps)
+        out[f"timesteps_{name}"] = s.timesteps.float()
+        out[f"sigmas_{name}"] = s.sigmas.float()
+    # A closed-form stand-in for the model: out = tanh(x / 2) * a + b * t / 1000.
+    shape = (2, 4, 8, 8)
+    a = torch.randn(shape, generator=gen)
+    b = torch.randn(shape, generator=gen)
+    out["model_a"], out["model_b"] = a, b
+    for name, extra, steps in [
+        ("eps_leading10", {}, 10),
+        ("eps_linspace10", {"timestep_spacing": "linspace", "steps_offset": 0}, 10),
+        ("v_leading10", {"prediction_type": "v_prediction"}, 10),
+        ("eps_trailing20", {"timestep_spacing": "trailing", "steps_offset": 0}, 20),
+    ]:
+        s = dpm(**extra)
+        s.set_timesteps(steps)
+        x = torch.randn(shape, generator=gen)
+        out[f"start_{name}"] = x.clone()
+        traj = []
+        for t in s.timesteps:
+            model_output = torch.tanh(x / 2) * a + b * (float(t) / 1000.0)
+            x = s.step(model_output, t, x).prev_sample
+            traj.append(x)
+        out[f"trajectory_{name}"] = torch.stack(traj)
+    save(out, os.path.join(OUT, "dpm_solver.safetensors"))
+
+
 def main():
     os.makedirs(OUT, exist_ok=True)
+    if sys.argv[1:] == ["dpm_solver"]:
+        dpm_solver_fixture()
+        return
     if sys.argv[1:] == ["cd_attention_last"]:
         cd_attention_last_fixtures()
         return
@@ -552,6 +607,7 @@ def main():
     vae_fixture()
     clip_fixture()
     scheduler_fixture(unet)
+    dpm_solver_fixture()
     multiview_fixtures()
     cd_attention_last_fixtures()
     total = sum(os.path.getsize(os.path.join(r, f)) for r, _, fs in os.walk(OUT) for f in fs)

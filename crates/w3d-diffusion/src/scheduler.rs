@@ -356,3 +356,178 @@ pub fn gaussian_noise<const D: usize>(shape: [usize; D], seed: u64, device: &Dev
     }
     Tensor::from_data(TensorData::new(values, shape), device)
 }
+
+/// diffusers' `DPMSolverMultistepScheduler` with its defaults: DPM-Solver++ (data prediction),
+/// second order with the midpoint update (“2M”), first order on the first step and on the
+/// last (the final σ is zero), deterministic. Lu et al. 2022 show it reaches DDIM's quality
+/// at 50 steps in about 20, so one generation needs fewer UNet evaluations.
+///
+/// The schedule (betas, ᾱ) and the timestep spacing come from the same [`SchedulerConfig`] as
+/// [`DdimScheduler`], as `DPMSolverMultistepScheduler.from_config(ddim.config)` does in
+/// diffusers. The solver works in σ = √((1−ᾱ)/ᾱ) and λ = log(α/σ); each step needs the
+/// previous step's x₀ prediction, so the scheduler holds that state: make a new one (or call
+/// [`DpmSolverMultistepScheduler::reset`]) for every sampling run.
+#[derive(Clone, Debug)]
+pub struct DpmSolverMultistepScheduler {
+    schedule: Schedule,
+    timesteps: Vec<usize>,
+    /// σ at each inference timestep, then the final σ = 0 (f32, as diffusers stores them).
+    sigmas: Vec<f64>,
+    /// The x₀ prediction of the previous step.
+    previous: Option<Tensor<4>>,
+    step_index: usize,
+}
+
+impl DpmSolverMultistepScheduler {
+    /// A scheduler for `num_inference_steps` steps. `linspace`, `leading` and `trailing`
+    /// spacing follow diffusers' `DPMSolverMultistepScheduler.set_timesteps` (which differs
+    /// from DDIM's: `leading` divides by `steps + 1`). DDIM's `clip_sample`,
+    /// `clip_sample_range` and `set_alpha_to_one` do not apply to this solver and are ignored,
+    /// as in diffusers.
+    pub fn new(config: SchedulerConfig, num_inference_steps: usize) -> Result<Self, Error> {
+        let schedule = Schedule::new(config)?;
+        let c = &schedule.config;
+        let t = c.num_train_timesteps;
+        check_steps(num_inference_steps, t)?;
+        let n = num_inference_steps;
+        let timesteps: Vec<usize> = match c.timestep_spacing.as_str() {
+            "linspace" => linspace(0.0, (t - 1) as f64, n + 1)
+                .into_iter()
+                .rev()
+                .take(n)
+                .map(|v| round_half_even(v) as usize)
+                .collect(),
+            "leading" => {
+                let ratio = t / (n + 1);
+                (1..=n).rev().map(|i| i * ratio + c.steps_offset).collect()
+            }
+            _ => {
+                let ratio = t as f64 / n as f64;
+                (0..n).map(|i| round_half_even(t as f64 - i as f64 * ratio) as usize - 1).collect()
+            }
+        };
+        if let Some(&bad) = timesteps.iter().find(|&&s| s >= t) {
+            return Err(Error::invalid("steps_offset", format!("timesteps below {t} (found {bad})")));
+        }
+        let mut sigmas: Vec<f64> = timesteps
+            .iter()
+            .map(|&s| {
+                let a = schedule.alphas_cumprod[s] as f32;
+                ((1.0 - a) / a).sqrt() as f64
+            })
+            .collect();
+        sigmas.push(0.0);
+        Ok(Self { schedule, timesteps, sigmas, previous: None, step_index: 0 })
+    }
+
+    /// Inference timesteps, in sampling order (descending).
+    pub fn timesteps(&self) -> &[usize] {
+        &self.timesteps
+    }
+
+    /// σ = √((1−ᾱ)/ᾱ) at each inference timestep, followed by the final σ = 0.
+    pub fn sigmas(&self) -> &[f64] {
+        &self.sigmas
+    }
+
+    /// Forgets the previous step, ready for a new sampling run.
+    pub fn reset(&mut self) {
+        self.previous = None;
+        self.step_index = 0;
+    }
+
+    /// One step from `timestep` (which must be the next of [`Self::timesteps`]) to the
+    /// following one, given the model output (ε, x₀ or v per the config) at `sample`. Steps
+    /// are second order but for the first and the last, which are first order.
+    pub fn step(&mut self, model_output: Tensor<4>, timestep: usize, sample: Tensor<4>) -> Result<Tensor<4>, Error> {
+        let i = self.step_index;
+        match self.timesteps.get(i) {
+            Some(&expected) if expected == timestep => {}
+            Some(&expected) => {
+                return Err(Error::invalid(
+                    "timestep",
+                    format!("the scheduler's next timestep {expected} (step {i}), found {timestep}"),
+                ));
+            }
+            None => {
+                return Err(Error::invalid(
+                    "timestep",
+                    format!("no timestep after the last of {} steps (call reset)", self.timesteps.len()),
+                ));
+            }
+        }
+        // α, σ of the variance-preserving process from σ_VE = σ/α.
+        let alpha_sigma = |s: f64| {
+            let alpha = 1.0 / (s * s + 1.0).sqrt();
+            (alpha, s * alpha)
+        };
+        let (alpha_s0, sigma_s0) = alpha_sigma(self.sigmas[i]);
+        let (alpha_t, sigma_t) = alpha_sigma(self.sigmas[i + 1]);
+        let lambda = |alpha: f64, sigma: f64| alpha.ln() - sigma.ln();
+        let x0 = self.data_prediction(model_output, sample.clone(), alpha_s0, sigma_s0);
+        let h = lambda(alpha_t, sigma_t) - lambda(alpha_s0, sigma_s0);
+        // exp(−h) − 1, which is −1 at the final σ = 0 (h = ∞).
+        let phi = (-h).exp() - 1.0;
+        let last = i + 1 == self.timesteps.len();
+        let prev = match (&self.previous, last) {
+            (Some(previous_x0), false) => {
+                let (alpha_s1, sigma_s1) = alpha_sigma(self.sigmas[i - 1]);
+                let h0 = lambda(alpha_s0, sigma_s0) - lambda(alpha_s1, sigma_s1);
+                let r0 = h0 / h;
+                let d1 = (x0.clone() - previous_x0.clone()) * (1.0 / r0);
+                sample * (sigma_t / sigma_s0) - x0.clone() * (alpha_t * phi) - d1 * (0.5 * alpha_t * phi)
+            }
+            _ => sample * (sigma_t / sigma_s0) - x0.clone() * (alpha_t * phi),
+        };
+        self.previous = Some(x0);
+        self.step_index += 1;
+        Ok(prev)
+    }
+
+    /// x₀ from the model output at (α, σ), as `convert_model_output` for DPM-Solver++.
+    fn data_prediction(&self, output: Tensor<4>, sample: Tensor<4>, alpha: f64, sigma: f64) -> Tensor<4> {
+        match self.schedule.prediction {
+            Prediction::Epsilon => (sample - output * sigma) / alpha,
+            Prediction::Sample => output,
+            Prediction::VPrediction => sample * alpha - output * sigma,
+        }
+    }
+}
+
+/// The sampling algorithm of a generation run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum SamplerKind {
+    /// DDIM ([`DdimScheduler`]), the authors' choice: 50 steps, eta 1.
+    #[default]
+    Ddim,
+    /// DPM-Solver++(2M) ([`DpmSolverMultistepScheduler`]): deterministic, about 20 steps.
+    DpmSolverPlusPlus2M,
+}
+
+impl SamplerKind {
+    /// The name used on the command line and in reports: `ddim` or `dpmpp-2m`.
+    pub fn name(self) -> &'static str {
+        match self {
+            SamplerKind::Ddim => "ddim",
+            SamplerKind::DpmSolverPlusPlus2M => "dpmpp-2m",
+        }
+    }
+}
+
+impl std::fmt::Display for SamplerKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for SamplerKind {
+    type Err = Error;
+
+    fn from_str(s: &str) -> Result<Self, Error> {
+        match s {
+            "ddim" => Ok(SamplerKind::Ddim),
+            "dpmpp-2m" | "dpm++2m" | "dpmsolver++" => Ok(SamplerKind::DpmSolverPlusPlus2M),
+            other => Err(Error::invalid("scheduler", format!("ddim or dpmpp-2m (found {other:?})"))),
+        }
+    }
+}

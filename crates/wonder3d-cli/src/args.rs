@@ -57,3 +57,13 @@ pub enum CameraArg {
     /// Perspective views (the `wonder3d-persp` rig).
     Persp,
 }
+
+/// `--scheduler`: the sampling algorithm of generation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum SchedulerArg {
+    /// DDIM, the authors' sampler (50 steps).
+    Ddim,
+    /// DPM-Solver++(2M): deterministic, about 20 steps for DDIM's 50.
+    #[value(name = "dpmpp-2m")]
+    DpmPp2m,
+}

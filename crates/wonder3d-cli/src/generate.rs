@@ -1,12 +1,12 @@
-//! `wonder3d generate IMAGE --weights DIR --out VIEWS_DIR [--camera ortho|persp] [--steps N]
-//! [--guidance G] [--eta E] [--seed S]`: the 6 normal + 6 colour views of an RGBA image from the
+//! `wonder3d generate IMAGE --weights DIR --out VIEWS_DIR [--camera ortho|persp]
+//! [--scheduler ddim|dpmpp-2m] [--steps N] [--guidance G] [--eta E] [--seed S]`: the 6 normal + 6 colour views of an RGBA image from the
 //! Wonder3D++ multi-view diffusion model, written as a view-set folder with a contact sheet.
 
 use std::path::{Path, PathBuf};
 
 use wonder3d::{Error, Result};
 
-use crate::args::CameraArg;
+use crate::args::{CameraArg, SchedulerArg};
 
 /// The model and sampling options shared by `generate` and `run` (defaults: the Wonder3D++
 /// sampling settings — 50 DDIM steps, guidance 2, eta 1, seed 42).
@@ -19,13 +19,16 @@ pub struct ModelArgs {
     /// Camera type of the generated views.
     #[arg(long, value_enum, default_value_t = CameraArg::Ortho)]
     pub camera: CameraArg,
-    /// DDIM steps.
+    /// Sampling algorithm.
+    #[arg(long, value_enum, default_value_t = SchedulerArg::Ddim)]
+    pub scheduler: SchedulerArg,
+    /// Sampling steps (50 is the authors' DDIM setting; 20 with dpmpp-2m).
     #[arg(long, default_value_t = 50)]
     pub steps: usize,
     /// Classifier-free guidance scale (1 = no unconditional branch).
     #[arg(long, default_value_t = 2.0)]
     pub guidance: f64,
-    /// DDIM eta: 0 deterministic, 1 the reference's stochastic sampling.
+    /// DDIM eta: 0 deterministic, 1 the reference's stochastic sampling (dpmpp-2m ignores it).
     #[arg(long, default_value_t = 1.0)]
     pub eta: f64,
     /// Seed of all sampling noise (the same seed gives the same views).
@@ -70,7 +73,7 @@ mod with_model {
     use super::*;
     use crate::progress;
     use wonder3d::sheet::{SheetRow, contact_sheet, normal_picture};
-    use wonder3d::{CameraType, Generated, Generator, Image, SampleOptions};
+    use wonder3d::{CameraType, Generated, Generator, Image, SampleOptions, SamplerKind};
 
     /// Loads the model of `args` with its sampling options.
     pub fn load(args: &ModelArgs) -> Result<Generator> {
@@ -78,8 +81,18 @@ mod with_model {
             CameraArg::Ortho => CameraType::Orthographic,
             CameraArg::Persp => CameraType::Perspective,
         };
-        let options =
-            SampleOptions { steps: args.steps, guidance: args.guidance, eta: args.eta, camera, seed: args.seed };
+        let sampler = match args.scheduler {
+            SchedulerArg::Ddim => SamplerKind::Ddim,
+            SchedulerArg::DpmPp2m => SamplerKind::DpmSolverPlusPlus2M,
+        };
+        let options = SampleOptions {
+            sampler,
+            steps: args.steps,
+            guidance: args.guidance,
+            eta: args.eta,
+            camera,
+            seed: args.seed,
+        };
         Ok(Generator::load(&args.weights)?.with_options(options))
     }
 

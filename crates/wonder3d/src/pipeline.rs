@@ -136,6 +136,8 @@ pub struct Report {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[non_exhaustive]
 pub struct GenerationReport {
+    /// Sampling algorithm (`ddim` or `dpmpp-2m`).
+    pub sampler: String,
     /// Sampling steps.
     pub steps: usize,
     /// Classifier-free guidance scale.
@@ -380,6 +382,7 @@ impl Pipeline {
         let start = Instant::now();
         let generated = model.generate(image, progress)?;
         let generation = GenerationReport {
+            sampler: model.options().sampler.name().to_string(),
             steps: model.options().steps,
             guidance: model.options().guidance,
             seed: model.options().seed,
