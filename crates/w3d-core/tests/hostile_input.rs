@@ -352,3 +352,31 @@ fn glb_node_cycles_are_refused() {
     let msg = load_error(&p);
     assert!(msg.contains("nodes[0]") && msg.contains("strict trees"), "{msg}");
 }
+
+#[test]
+fn exr_headers_claiming_billions_of_pixels_are_refused_before_decoding() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("small.exr");
+    Image::filled(3, 2, 4, 0.5).unwrap().write_exr(&p).unwrap();
+    w3d_core::io::check_exr_size(&p).unwrap();
+    // Patch the data window to 60000 × 60000 (the fuzzer's case asked for 57 GB).
+    let mut bytes = std::fs::read(&p).unwrap();
+    let key = b"dataWindow\0box2i\0";
+    let at = bytes.windows(key.len()).position(|w| w == key).unwrap() + key.len() + 4;
+    bytes[at + 8..at + 12].copy_from_slice(&59_999i32.to_le_bytes());
+    bytes[at + 12..at + 16].copy_from_slice(&59_999i32.to_le_bytes());
+    let huge = write(dir.path(), "huge.exr", &bytes);
+    let msg = message_for(w3d_core::io::check_exr_size(&huge).unwrap_err(), &huge);
+    assert!(msg.contains("data window") && msg.contains("60000×60000"), "{msg}");
+    // The view-set loader checks it before decoding.
+    let rig = ViewRig::wonder3d_ortho();
+    let out = dir.path().join("views");
+    ViewSet::new(rig.clone(), views(&rig, 4, 0.5)).unwrap().save(&out).unwrap();
+    let cameras = out.join("cameras.json");
+    let mut json: serde_json::Value = serde_json::from_slice(&std::fs::read(&cameras).unwrap()).unwrap();
+    json.as_object_mut().unwrap().remove("files");
+    std::fs::write(&cameras, json.to_string()).unwrap();
+    std::fs::write(out.join("normal_front.exr"), &bytes).unwrap();
+    let msg = ViewSet::load(&out).unwrap_err().to_string();
+    assert!(msg.contains("normal_front.exr") && msg.contains("data window"), "{msg}");
+}

@@ -4,6 +4,7 @@
 //! goes to a temporary file beside the destination and is renamed into place, so a
 //! failed write never leaves a half-written file.
 
+mod exr_limits;
 mod gltf_io;
 mod obj;
 mod ply;
@@ -12,6 +13,7 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
+pub use exr_limits::{MAX_EXR_PIXELS, check_exr_size};
 pub use gltf_io::{read_glb_bytes, read_gltf, write_glb};
 pub use obj::{read_obj, write_obj};
 pub use ply::{read_ply, write_ply};
