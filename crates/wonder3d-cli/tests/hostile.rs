@@ -82,6 +82,9 @@ fn sizes_that_cannot_fit_in_memory_are_refused_by_the_parser() {
     assert!(!out.exists());
     let err = fails_within(5, &["texture", &torus, s(dir.path()), "--size", "0", "--out", "t.glb"]);
     assert!(err.contains("from 8 to 8192 texels") && !err.contains("dilation"), "{err}");
+    // Options that only the bake would refuse are checked before the demo's reconstruction.
+    let err = fails_within(3, &["demo", "--out", s(&dir.path().join("demo")), "--texture-size", "8", "--quiet"]);
+    assert!(err.contains("padding"), "{err}");
 }
 
 #[test]
