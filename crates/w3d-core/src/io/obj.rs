@@ -16,10 +16,12 @@ use crate::{Error, Mesh, Result};
 /// same vertex order; other files may be renumbered (the geometry is the same). A `mtllib` that
 /// cannot be read, or a `map_Kd` texture that is missing, is an error naming that file.
 ///
-/// Before parsing, every line is checked (see [`check_obj_text`]), so a face that names a
-/// vertex the file does not have, a record cut short (the usual trace of a truncated file),
-/// a missing `mtllib` file or a file with vertices but no faces is an error naming the line
-/// or the file rather than a partial mesh.
+/// Before parsing, every line is checked, so a face that names a vertex the file does not
+/// have, a record cut short (the usual trace of a truncated file: a face of fewer than 3
+/// vertices or of mixed forms like `3/3` after `1/1/1`, a vertex with too few numbers), a
+/// missing `mtllib` file or a file with vertices but no faces is an error naming the line or
+/// the file rather than a partial mesh. A cut between two lines, or inside the last number
+/// of a line, leaves a valid shorter file and cannot be detected (OBJ has no counts).
 pub fn read_obj(path: impl AsRef<Path>) -> Result<Mesh> {
     let path = path.as_ref();
     let bytes = crate::io::read_input(path)?;
