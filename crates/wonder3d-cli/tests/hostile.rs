@@ -218,4 +218,10 @@ fn degenerate_triangles_are_reported_not_called_watertight() {
     let run = wonder3d(&["info", s(&p)]);
     let text = String::from_utf8_lossy(&run.stdout);
     assert!(text.contains("degenerate    1") && text.contains("watertight    no"), "{text}");
+    // Its views are empty; reconstruction names the first empty view instead of "mask".
+    let views = dir.path().join("views");
+    let run = wonder3d(&["render", s(&p), "--size", "16", "--out", s(&views)]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let err = fails_within(5, &["reconstruct", s(&views), "--out", s(&dir.path().join("x.glb")), "--quiet"]);
+    assert!(err.contains("views[0].mask (front)") && err.contains("empty mask"), "{err}");
 }
