@@ -4,7 +4,7 @@
 //!
 //! | file | content |
 //! |---|---|
-//! | `cameras.json` | the [`ViewRig`] |
+//! | `cameras.json` | the [`ViewRig`], and `files`: every view file's size and FNV-1a hash |
 //! | `normal_<view>.png` | RGB = (n + 1) / 2 (canonical frame), alpha = mask |
 //! | `normal_<view>.exr` | full-precision normals (RGB = n), alpha = mask |
 //! | `colour_<view>.png` | sRGB colour, alpha = mask (optional) |
@@ -12,7 +12,9 @@
 //! | `depth_<view>.exr` | depth in world units along the view axis, 0 on background (optional) |
 //!
 //! On load, `normal_<view>.exr` is preferred over the PNG when present, and the mask
-//! comes from `mask_<view>.png`, or else from the normal map's alpha.
+//! comes from `mask_<view>.png`, or else from the normal map's alpha. A folder is written
+//! whole ([`ViewSet::save_with`]) and a file that does not match the `files` list is
+//! refused, so a folder never mixes two renders.
 
 #[cfg(feature = "io")]
 use std::path::Path;
