@@ -67,9 +67,10 @@ pub struct Topology {
 }
 
 impl Topology {
-    /// Every edge is shared by exactly two triangles.
+    /// Every edge is shared by exactly two triangles, and there is at least one triangle (a
+    /// mesh whose triangles all collapse when merging by position is not a closed surface).
     pub fn is_watertight(&self) -> bool {
-        self.boundary_edges == 0 && self.non_manifold_edges == 0
+        self.faces > 0 && self.boundary_edges == 0 && self.non_manifold_edges == 0
     }
 
     /// Genus `(2·components − euler) / 2` of a watertight mesh; `None` if the mesh has
@@ -87,11 +88,14 @@ impl Mesh {
     /// (`positions[i].y`), an index out of range or a repeated index (`triangles[i]`), or
     /// an empty array.
     pub fn new(positions: Vec<[f32; 3]>, triangles: Vec<[u32; 3]>) -> Result<Self> {
+        if triangles.is_empty() {
+            return Err(Error::invalid(
+                "triangles",
+                format!("at least one triangle, got none (and {} vertices)", positions.len()),
+            ));
+        }
         if positions.is_empty() {
             return Err(Error::invalid("positions", "at least 3 vertices, got none"));
-        }
-        if triangles.is_empty() {
-            return Err(Error::invalid("triangles", "at least one triangle, got none"));
         }
         validate_geometry(&positions, &triangles)?;
         Ok(Mesh { positions, triangles, normals: None, uvs: None, colours: None, texture: None })
@@ -339,6 +343,47 @@ impl Mesh {
         check_finite("positions", self.positions.iter().flatten())
     }
 
+    /// Number of degenerate triangles: two corners at the same position (as
+    /// [`Mesh::merge_by_position`] compares them: bit-identical, −0 = +0) or three collinear
+    /// corners (zero area, computed exactly in f64). `wonder3d info` reports them; they have
+    /// no orientation, so [`Mesh::orient_outward`] and the topology of the merged mesh ignore
+    /// them.
+    pub fn degenerate_triangle_count(&self) -> usize {
+        let key = |p: [f32; 3]| p.map(|v| if v == 0.0 { 0 } else { v.to_bits() });
+        self.triangles
+            .iter()
+            .filter(|t| {
+                let [a, b, c] = t.map(|i| self.positions[i as usize]);
+                let (ka, kb, kc) = (key(a), key(b), key(c));
+                if ka == kb || kb == kc || ka == kc {
+                    return true;
+                }
+                let [a, b, c] = [a, b, c].map(|p| glam::DVec3::from(p.map(f64::from)));
+                (b - a).cross(c - a) == glam::DVec3::ZERO
+            })
+            .count()
+    }
+
+    /// Whether the mesh is a closed surface wound inward: watertight after merging by
+    /// position, with a negative signed volume (the divergence theorem is exact for closed
+    /// surfaces, so the sign is the orientation).
+    pub fn is_closed_inward(&self) -> bool {
+        let (merged, _) = self.merge_by_position();
+        merged.topology().is_watertight() && merged.signed_volume() < 0.0
+    }
+
+    /// Orients a closed mesh outward (counter-clockwise seen from outside, as the whole
+    /// workspace assumes): when [`Mesh::is_closed_inward`], flips the winding (and the
+    /// normals) and returns `true`; otherwise (already outward, or open, where inside and
+    /// outside are undefined) leaves the mesh unchanged and returns `false`.
+    pub fn orient_outward(&mut self) -> bool {
+        let inward = self.is_closed_inward();
+        if inward {
+            self.flip_winding();
+        }
+        inward
+    }
+
     /// Reverses the winding of every triangle (for meshes wound inward, e.g. horse.ply),
     /// negating normals.
     pub fn flip_winding(&mut self) {
@@ -506,7 +551,44 @@ mod tests {
         assert!(err.contains("positions[2].y"), "{err}");
         let m = Mesh::new(p, vec![[0, 1, 2]]).unwrap();
         assert!(m.clone().with_normals(vec![[0.0; 3]; 2]).is_err());
+        assert_eq!(m.degenerate_triangle_count(), 0);
         assert!(m.with_texture(Image::filled(2, 2, 3, 0.5).unwrap()).is_err());
+    }
+
+    #[test]
+    fn degenerate_triangles_are_counted_and_not_watertight() {
+        // Three distinct indices at one position: merging leaves no triangle at all, which
+        // is not a closed surface (it was reported "watertight, genus 0").
+        let m = Mesh::new(vec![[0.5, 0.5, 0.5]; 3], vec![[0, 1, 2]]).unwrap();
+        assert_eq!(m.degenerate_triangle_count(), 1);
+        let topo = m.merge_by_position().0.topology();
+        assert_eq!(topo.faces, 0);
+        assert!(!topo.is_watertight());
+        assert_eq!(topo.genus(), None);
+        // Collinear corners, and a sliver with two equal corners beside a good triangle.
+        let p = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 1.0, 0.0]];
+        let m = Mesh::new(p, vec![[0, 1, 2], [0, 1, 3], [1, 3, 4]]).unwrap();
+        assert_eq!(m.degenerate_triangle_count(), 2);
+        assert_eq!(tetrahedron().degenerate_triangle_count(), 0);
+    }
+
+    #[test]
+    fn orient_outward_flips_closed_inward_meshes_only() {
+        let outward = tetrahedron();
+        let mut inward = outward.clone();
+        inward.flip_winding();
+        assert!(inward.signed_volume() < 0.0 && inward.is_closed_inward());
+        let mut m = inward.clone();
+        assert!(m.orient_outward());
+        assert_eq!(m, outward);
+        assert!(!m.orient_outward(), "already outward");
+        assert_eq!(m, outward);
+        // Open meshes have no inside: left as they are, whatever their signed volume.
+        let p = vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let mut open = Mesh::new(p, vec![[0, 1, 2], [0, 3, 1], [0, 2, 3]]).unwrap();
+        let before = open.clone();
+        assert!(!open.orient_outward());
+        assert_eq!(open, before);
     }
 
     #[test]

@@ -29,6 +29,23 @@ pub const WONDER3D_HALF_EXTENT: f32 = 0.75;
 /// The orthographic rig uses the same distance (it only affects depth values).
 pub const WONDER3D_DISTANCE: f32 = WONDER3D_HALF_EXTENT * 35.0 / 16.0;
 
+/// Allowed distance from a rig camera to its target, world units. Every rig frames the
+/// canonical object (centred at the origin, longest side 1: the unit cube `[-0.5, 0.5]³`,
+/// half-diagonal 0.87) from outside; the Wonder3D rigs sit at 1.64, SyncDreamer's at 1.5.
+pub const RIG_DISTANCE_RANGE: (f32, f32) = (0.9, 100.0);
+
+/// Allowed half-height of a rig camera's image at its target, world units (orthographic:
+/// `half_height`; perspective: `distance · tan(fov_y / 2)`). The Wonder3D rigs use 0.75: the
+/// unit cube fills most of the frame. Below 0.25 the object overflows every view by more
+/// than twice; above 4 it covers less than an eighth of the frame, and reconstruction would
+/// build a mesh for a scene many units wide at the unit-cube density (`half_height` 100 ran
+/// for minutes and took gigabytes before this check).
+pub const RIG_HALF_EXTENT_RANGE: (f32, f32) = (0.25, 4.0);
+
+/// Largest allowed distance of a rig camera's target from the origin, world units: rig
+/// cameras look at the canonical object.
+pub const RIG_MAX_TARGET_OFFSET: f32 = 1.0;
+
 /// One named camera of a rig.
 #[derive(Debug, Clone, PartialEq)]
 #[cfg_attr(feature = "serde", derive(serde::Serialize, serde::Deserialize))]
@@ -134,7 +151,10 @@ impl ViewRig {
         self.views.iter().map(|v| &v.camera)
     }
 
-    /// Checks that the rig has views, unique names and valid cameras.
+    /// Checks that the rig has views, unique names and valid cameras that frame the
+    /// canonical unit-cube object: each camera at a distance in [`RIG_DISTANCE_RANGE`] from
+    /// a target within [`RIG_MAX_TARGET_OFFSET`] of the origin, seeing a half-height in
+    /// [`RIG_HALF_EXTENT_RANGE`] there. Errors name the view and the value.
     pub fn validate(&self) -> Result<()> {
         if self.views.is_empty() {
             return Err(Error::invalid("views", "at least one view"));
@@ -153,8 +173,60 @@ impl ViewRig {
                 Error::Invalid { field, expected } => Error::invalid(format!("views[{i}].{field}"), expected),
                 other => other,
             })?;
+            check_framing(i, &v.camera)?;
         }
         Ok(())
+    }
+}
+
+/// The framing part of [`ViewRig::validate`] for view `i` (the camera is already valid).
+fn check_framing(i: usize, camera: &Camera) -> Result<()> {
+    let distance = (camera.eye - camera.target).length();
+    let (lo, hi) = RIG_DISTANCE_RANGE;
+    if !(lo..=hi).contains(&distance) {
+        return Err(Error::invalid(
+            format!("views[{i}].camera.eye"),
+            format!(
+                "a camera {lo} to {hi} units from its target (outside the unit-cube object, in the canonical \
+                 framing), got {distance}"
+            ),
+        ));
+    }
+    let offset = camera.target.length();
+    if offset > RIG_MAX_TARGET_OFFSET {
+        return Err(Error::invalid(
+            format!("views[{i}].camera.target"),
+            format!(
+                "a target within {RIG_MAX_TARGET_OFFSET} of the origin (rigs look at the unit-cube object), got \
+                 {:?} ({offset} away)",
+                camera.target.to_array()
+            ),
+        ));
+    }
+    let (lo, hi) = RIG_HALF_EXTENT_RANGE;
+    match camera.projection {
+        Projection::Orthographic { half_height } if !(lo..=hi).contains(&half_height) => Err(Error::invalid(
+            format!("views[{i}].camera.projection.half_height"),
+            format!(
+                "a half-height of {lo} to {hi} units (the unit-cube object in frame; the Wonder3D rig uses \
+                 {WONDER3D_HALF_EXTENT}), got {half_height}"
+            ),
+        )),
+        Projection::Perspective { fov_y } => {
+            let half = distance * (0.5 * fov_y).tan();
+            if (lo..=hi).contains(&half) {
+                Ok(())
+            } else {
+                Err(Error::invalid(
+                    format!("views[{i}].camera.projection.fov_y"),
+                    format!(
+                        "a field of view that sees {lo} to {hi} units above and below the target (the unit-cube \
+                         object in frame), got {fov_y} rad at distance {distance}: {half} units"
+                    ),
+                ))
+            }
+        }
+        _ => Ok(()),
     }
 }
 
@@ -171,7 +243,9 @@ impl ViewRig {
     /// Reads and validates a rig written by [`ViewRig::save_json`].
     pub fn load_json(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let bytes = crate::io::read_input(path)?;
+        let text = String::from_utf8(bytes)
+            .map_err(|e| Error::format(path, format!("byte {}", e.utf8_error().valid_up_to()), "UTF-8 JSON text"))?;
         let rig: ViewRig = serde_json::from_str(&text).map_err(|e| {
             Error::format(path, format!("line {} column {}", e.line(), e.column()), format!("a camera rig ({e})"))
         })?;

@@ -4,7 +4,7 @@
 //!
 //! | file | content |
 //! |---|---|
-//! | `cameras.json` | the [`ViewRig`] |
+//! | `cameras.json` | the [`ViewRig`], and `files`: every view file's size and FNV-1a hash |
 //! | `normal_<view>.png` | RGB = (n + 1) / 2 (canonical frame), alpha = mask |
 //! | `normal_<view>.exr` | full-precision normals (RGB = n), alpha = mask |
 //! | `colour_<view>.png` | sRGB colour, alpha = mask (optional) |
@@ -12,7 +12,9 @@
 //! | `depth_<view>.exr` | depth in world units along the view axis, 0 on background (optional) |
 //!
 //! On load, `normal_<view>.exr` is preferred over the PNG when present, and the mask
-//! comes from `mask_<view>.png`, or else from the normal map's alpha.
+//! comes from `mask_<view>.png`, or else from the normal map's alpha. A folder is written
+//! whole ([`ViewSet::save_with`]) and a file that does not match the `files` list is
+//! refused, so a folder never mixes two renders.
 
 #[cfg(feature = "io")]
 use std::path::Path;
@@ -54,8 +56,10 @@ impl ViewSet {
     /// Pairs `views` with `rig` after checking that:
     /// - the rig is valid ([`ViewRig::validate`]; its errors are reported under `rig.`);
     /// - there is one view per rig view, with the rig's names in rig order (`views[i].name`);
-    /// - every image has the size of the first view's mask, and the documented channel count:
-    ///   normal 3, mask 1, colour 3, depth 1 (`views[i].normal`, `views[i].mask`, …).
+    /// - every image has the same size (an image whose size differs from the size most
+    ///   images share is the one reported), the documented channel count: normal 3,
+    ///   mask 1, colour 3, depth 1 (`views[i].normal`, `views[i].mask`, …), and finite
+    ///   values (an EXR file may hold NaN or infinities).
     pub fn new(rig: ViewRig, views: Vec<ViewImages>) -> Result<ViewSet> {
         rig.validate().map_err(|e| match e {
             Error::Invalid { field, expected } => Error::invalid(format!("rig.{field}"), expected),
@@ -67,8 +71,9 @@ impl ViewSet {
                 format!("{} views to match the rig {:?}, got {}", rig.views.len(), rig.name, views.len()),
             ));
         }
-        // The rig has at least one view, so `views[0]` exists.
-        let (w, h) = (views[0].mask.width(), views[0].mask.height());
+        // The size most images have, so that the one odd image is the one blamed (the rig
+        // has at least one view, so there is at least one image).
+        let (w, h) = common_size(&views);
         for (i, (v, r)) in views.iter().zip(&rig.views).enumerate() {
             if v.name != r.name {
                 return Err(Error::invalid(
@@ -76,13 +81,28 @@ impl ViewSet {
                     format!("{:?} as in the rig, got {:?}", r.name, v.name),
                 ));
             }
-            v.normal.expect_shape(&format!("views[{i}].normal"), w, h, 3)?;
-            v.mask.expect_shape(&format!("views[{i}].mask"), w, h, 1)?;
-            if let Some(c) = &v.colour {
-                c.expect_shape(&format!("views[{i}].colour"), w, h, 3)?;
-            }
-            if let Some(d) = &v.depth {
-                d.expect_shape(&format!("views[{i}].depth"), w, h, 1)?;
+            let images = [
+                ("normal", Some(&v.normal), 3u32),
+                ("mask", Some(&v.mask), 1),
+                ("colour", v.colour.as_ref(), 3),
+                ("depth", v.depth.as_ref(), 1),
+            ];
+            for (kind, image, channels) in images {
+                let Some(image) = image else { continue };
+                let field = format!("views[{i}].{kind}");
+                image.expect_shape(&field, w, h, channels)?;
+                if let Some(k) = image.data().iter().position(|x| !x.is_finite()) {
+                    let pixel = k / channels as usize;
+                    return Err(Error::invalid(
+                        field,
+                        format!(
+                            "finite values, got {} at pixel ({}, {})",
+                            image.data()[k],
+                            pixel % w as usize,
+                            pixel / w as usize
+                        ),
+                    ));
+                }
             }
         }
         Ok(ViewSet { rig, views })
@@ -133,12 +153,84 @@ impl ViewSet {
 /// View-set folders (feature `io`).
 #[cfg(feature = "io")]
 impl ViewSet {
-    /// Writes the rig and every image into `dir` (created if needed), in the layout of
-    /// the module documentation. Each file is written atomically.
+    /// Writes the rig and every image into the folder `dir`, in the layout of the module
+    /// documentation; see [`ViewSet::save_with`].
     pub fn save(&self, dir: impl AsRef<Path>) -> Result<()> {
+        self.save_with(dir, |_| Ok(()))
+    }
+
+    /// Writes the view set into the folder `dir` all at once: every file goes into a
+    /// temporary sibling folder first, `extra` may add files of its own there (a contact
+    /// sheet, the input image), `cameras.json` comes last and lists every view file with its
+    /// size and FNV-1a hash (so [`ViewSet::load`] can refuse a folder whose files come from
+    /// different renders), and only then the finished folder replaces `dir`. A failure at
+    /// any point leaves `dir` as it was.
+    ///
+    /// `dir` must pass [`ViewSet::check_output_dir`]: an existing folder is replaced only
+    /// when it holds nothing but view-set files, so no other file is ever deleted.
+    pub fn save_with(&self, dir: impl AsRef<Path>, extra: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
         let dir = dir.as_ref();
-        std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-        self.rig.save_json(dir.join("cameras.json"))?;
+        ViewSet::check_output_dir(dir)?;
+        let staging = sibling(dir, "partial")?;
+        let written = (|| {
+            std::fs::create_dir(&staging).map_err(|e| Error::io(&staging, e))?;
+            self.write_files(&staging)?;
+            extra(&staging)?;
+            write_manifest(&staging, &self.rig)
+        })();
+        if let Err(e) = written {
+            let _ = std::fs::remove_dir_all(&staging);
+            return Err(e);
+        }
+        replace_dir(&staging, dir)
+    }
+
+    /// Fails unless `dir` can receive a view set from [`ViewSet::save`] without losing
+    /// anything: not a file, its parent an existing folder, and, if `dir` exists, a folder
+    /// holding only view-set files (`cameras.json`, `normal_*.png|exr`, `colour_*.png`,
+    /// `mask_*.png`, `depth_*.exr`, `input.png`, `views.png`), which the new set replaces.
+    /// Commands call it before any long work.
+    pub fn check_output_dir(dir: impl AsRef<Path>) -> Result<()> {
+        let dir = dir.as_ref();
+        let field = || format!("output folder {}", dir.display());
+        if dir.file_name().is_none() {
+            return Err(Error::invalid(field(), "a folder name (not `.`, `..` or a root)"));
+        }
+        match dir.parent() {
+            Some(p) if !p.as_os_str().is_empty() && !p.is_dir() => {
+                return Err(Error::invalid(
+                    field(),
+                    format!("a folder inside an existing one; create {} first", p.display()),
+                ));
+            }
+            _ => {}
+        }
+        match std::fs::symlink_metadata(dir) {
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+            Err(e) => return Err(Error::io(dir, e)),
+            Ok(m) if !m.is_dir() => return Err(Error::invalid(field(), "a folder, but it is a file")),
+            Ok(_) => {}
+        }
+        for entry in std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))? {
+            let entry = entry.map_err(|e| Error::io(dir, e))?;
+            let name = entry.file_name();
+            let is_file = entry.file_type().map_err(|e| Error::io(entry.path(), e))?.is_file();
+            if !(is_file && name.to_str().is_some_and(is_view_set_file)) {
+                return Err(Error::invalid(
+                    field(),
+                    format!(
+                        "a new folder, or one holding only view-set files (it is replaced); {} is not one: \
+                         choose another --out",
+                        entry.path().display()
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// Writes every image file of the set into `dir` (which exists).
+    fn write_files(&self, dir: &Path) -> Result<()> {
         for v in &self.views {
             let n = v.normal.data();
             let m = v.mask.data();
@@ -162,15 +254,22 @@ impl ViewSet {
 
     /// Reads a folder written by [`ViewSet::save`] (or by `wonder3d render` /
     /// `wonder3d generate`), checked as by [`ViewSet::new`]; errors name the folder.
+    ///
+    /// When `cameras.json` lists the files of its render (as [`ViewSet::save`] writes it),
+    /// every listed file that is present must have the recorded size and hash, and every
+    /// view file present must be listed: a folder mixing two renders (a failed write into an
+    /// old folder, files copied in) is refused, naming the file.
     pub fn load(dir: impl AsRef<Path>) -> Result<ViewSet> {
         let dir = dir.as_ref();
         let rig = ViewRig::load_json(dir.join("cameras.json"))?;
+        check_manifest(dir, &rig)?;
         let mut views = Vec::with_capacity(rig.views.len());
         for r in &rig.views {
             let name = &r.name;
             let exr_path = dir.join(format!("normal_{name}.exr"));
             let png_path = dir.join(format!("normal_{name}.png"));
             let (normal, alpha) = if exr_path.is_file() {
+                crate::io::check_exr_size(&exr_path)?;
                 let img = Image::read_exr(&exr_path)?;
                 split_rgba(&img, |x| x)
             } else {
@@ -198,6 +297,7 @@ impl ViewSet {
             };
             let depth_path = dir.join(format!("depth_{name}.exr"));
             let depth = if depth_path.is_file() {
+                crate::io::check_exr_size(&depth_path)?;
                 let img = Image::read_exr(&depth_path)?;
                 let d: Vec<f32> = img.data().chunks_exact(4).map(|p| p[0]).collect();
                 Some(Image::new(img.width(), img.height(), 1, d)?)
@@ -208,6 +308,156 @@ impl ViewSet {
         }
         ViewSet::new(rig, views).map_err(|e| e.in_file(dir))
     }
+}
+
+/// The image size shared by most images of `views` (ties: the first view's mask's).
+fn common_size(views: &[ViewImages]) -> (u32, u32) {
+    let mut counts: Vec<((u32, u32), usize)> = Vec::new();
+    let images = views.iter().flat_map(|v| [Some(&v.mask), Some(&v.normal), v.colour.as_ref(), v.depth.as_ref()]);
+    for image in images.flatten() {
+        let size = (image.width(), image.height());
+        match counts.iter_mut().find(|(s, _)| *s == size) {
+            Some((_, n)) => *n += 1,
+            None => counts.push((size, 1)),
+        }
+    }
+    // `max_by_key` keeps the last maximum: scan in reverse so ties go to the first size.
+    counts.iter().rev().max_by_key(|(_, n)| *n).map(|(s, _)| *s).unwrap_or((0, 0))
+}
+
+/// Whether `name` is a file of the view-set layout (the files [`ViewSet::save_with`] may
+/// replace).
+#[cfg(feature = "io")]
+fn is_view_set_file(name: &str) -> bool {
+    const KINDS: [(&str, &str); 5] =
+        [("normal_", ".png"), ("normal_", ".exr"), ("colour_", ".png"), ("mask_", ".png"), ("depth_", ".exr")];
+    matches!(name, "cameras.json" | "input.png" | "views.png")
+        || KINDS.iter().any(|(prefix, ext)| name.starts_with(prefix) && name.ends_with(ext))
+}
+
+/// The files the loader may read for view `name`.
+#[cfg(feature = "io")]
+fn view_file_names(name: &str) -> [String; 5] {
+    [
+        format!("normal_{name}.exr"),
+        format!("normal_{name}.png"),
+        format!("mask_{name}.png"),
+        format!("colour_{name}.png"),
+        format!("depth_{name}.exr"),
+    ]
+}
+
+/// 64-bit FNV-1a hash of `bytes`, as 16 hex digits.
+#[cfg(feature = "io")]
+fn fnv1a64(bytes: &[u8]) -> String {
+    let hash =
+        bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3));
+    format!("{hash:016x}")
+}
+
+/// Writes `cameras.json` into `dir`: the rig, plus `files`, the size and hash of every view
+/// file already in `dir`.
+#[cfg(feature = "io")]
+fn write_manifest(dir: &Path, rig: &ViewRig) -> Result<()> {
+    let mut files = serde_json::Map::new();
+    for r in &rig.views {
+        for name in view_file_names(&r.name) {
+            let path = dir.join(&name);
+            if path.is_file() {
+                let bytes = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
+                files.insert(name, serde_json::json!({ "bytes": bytes.len(), "fnv1a64": fnv1a64(&bytes) }));
+            }
+        }
+    }
+    let mut value = serde_json::to_value(rig).expect("a rig always serialises");
+    value["files"] = serde_json::Value::Object(files);
+    let text = serde_json::to_string_pretty(&value).expect("JSON values serialise");
+    let path = dir.join("cameras.json");
+    crate::io::write_atomic(&path, |w| std::io::Write::write_all(w, text.as_bytes()).map_err(|e| Error::io(&path, e)))
+}
+
+/// The checks of [`ViewSet::load`] against the `files` list of `cameras.json`, if it has
+/// one (folders written before the list existed, or edited by hand with the list removed,
+/// load without it).
+#[cfg(feature = "io")]
+fn check_manifest(dir: &Path, rig: &ViewRig) -> Result<()> {
+    let cameras = dir.join("cameras.json");
+    let text = std::fs::read_to_string(&cameras).map_err(|e| Error::io(&cameras, e))?;
+    let value: serde_json::Value =
+        serde_json::from_str(&text).map_err(|e| Error::format(&cameras, "JSON", format!("a camera rig ({e})")))?;
+    let Some(files) = value.get("files") else { return Ok(()) };
+    let files = files
+        .as_object()
+        .ok_or_else(|| Error::format(&cameras, "files", "an object mapping file names to {\"bytes\", \"fnv1a64\"}"))?;
+    let tip = "the folder mixes files of different renders; render it again (or, for files edited on \
+               purpose, delete the \"files\" list from cameras.json)";
+    for r in &rig.views {
+        for name in view_file_names(&r.name) {
+            let path = dir.join(&name);
+            if !path.is_file() {
+                continue;
+            }
+            let Some(entry) = files.get(&name) else {
+                return Err(Error::format(
+                    &path,
+                    "file",
+                    format!("a file listed in cameras.json, which does not list it: {tip}"),
+                ));
+            };
+            let (bytes, hash) =
+                (entry.get("bytes").and_then(|b| b.as_u64()), entry.get("fnv1a64").and_then(|h| h.as_str()));
+            let (Some(bytes), Some(hash)) = (bytes, hash) else {
+                return Err(Error::format(&cameras, format!("files.{name}"), "{\"bytes\": N, \"fnv1a64\": \"HEX\"}"));
+            };
+            let len = std::fs::metadata(&path).map_err(|e| Error::io(&path, e))?.len();
+            let matches = len == bytes && {
+                let data = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
+                fnv1a64(&data) == hash
+            };
+            if !matches {
+                return Err(Error::format(
+                    &path,
+                    "content",
+                    format!(
+                        "the file cameras.json lists ({bytes} bytes, FNV-1a {hash}), got {len} bytes of other content: {tip}"
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
+}
+
+/// A path beside `dir` for a staging or backup folder: `.<name>.<what>-<pid>-<n>`.
+#[cfg(feature = "io")]
+fn sibling(dir: &Path, what: &str) -> Result<std::path::PathBuf> {
+    let name = dir
+        .file_name()
+        .ok_or_else(|| Error::invalid(format!("output folder {}", dir.display()), "a folder name"))?
+        .to_string_lossy()
+        .into_owned();
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.subsec_nanos());
+    Ok(dir.with_file_name(format!(".{name}.{what}-{}-{nanos}", std::process::id())))
+}
+
+/// Moves the finished folder `staging` to `dir`, replacing an existing `dir` (moved aside
+/// first and deleted only once `staging` is in place; put back if the move fails).
+#[cfg(feature = "io")]
+fn replace_dir(staging: &Path, dir: &Path) -> Result<()> {
+    let fail = |e: std::io::Error| {
+        let _ = std::fs::remove_dir_all(staging);
+        Error::io(dir, e)
+    };
+    if !dir.exists() {
+        return std::fs::rename(staging, dir).map_err(fail);
+    }
+    let old = sibling(dir, "old")?;
+    std::fs::rename(dir, &old).map_err(fail)?;
+    if let Err(e) = std::fs::rename(staging, dir) {
+        let _ = std::fs::rename(&old, dir);
+        return Err(fail(e));
+    }
+    std::fs::remove_dir_all(&old).map_err(|e| Error::io(&old, e))
 }
 
 /// Splits an RGBA image into (RGB mapped by `f`, alpha).

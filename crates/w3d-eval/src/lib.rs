@@ -43,7 +43,7 @@ mod winding;
 pub use distance::{FScore, SurfaceComparison};
 pub use icp::{IcpOptions, Similarity, align_icp_scale};
 pub use image_metrics::{composite_over_white, psnr, ssim};
-pub use sampling::{SurfaceSamples, sample_surface};
+pub use sampling::{MAX_SAMPLES, SurfaceSamples, sample_surface};
 pub use visible::{VisibleChamfer, VisibleOptions, visible_points, visible_surface_chamfer, voxel_down_sample};
 pub use volume::{Grid, occupancy, occupancy_iou, volume_iou};
 pub use winding::WindingNumber;
@@ -143,8 +143,11 @@ pub struct MeshMetrics {
 /// field. Errors on a zero sample count, a zero-area mesh, or a pair whose volumes are
 /// both empty on a grid.
 pub fn evaluate(pred: &Mesh, gt: &Mesh, options: &EvalOptions) -> Result<MeshMetrics> {
-    if options.samples == 0 {
-        return Err(Error::invalid("options.samples", "at least 1 surface sample, got 0"));
+    if options.samples == 0 || options.samples > sampling::MAX_SAMPLES {
+        return Err(Error::invalid(
+            "options.samples",
+            format!("1 to {} surface samples, got {}", sampling::MAX_SAMPLES, options.samples),
+        ));
     }
     let mut gt = gt.clone();
     gt.normalize_unit_cube();

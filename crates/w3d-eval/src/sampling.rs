@@ -47,6 +47,11 @@ fn mix64(mut z: u64) -> u64 {
     z ^ (z >> 31)
 }
 
+/// The most points [`sample_surface`] draws (and so the most samples
+/// [`EvalOptions::samples`](crate::EvalOptions::samples) may ask for): 10⁷ samples with their k-d tree take about
+/// 1 GB; 10¹¹ asked for 1.2 TB and aborted the process on allocation.
+pub const MAX_SAMPLES: usize = 10_000_000;
+
 /// Samples `count` points uniformly by area on `mesh`'s surface.
 ///
 /// Point `i` uses outputs `3i+1 … 3i+3` of a SplitMix64 stream seeded by `seed`: the first
@@ -58,6 +63,12 @@ fn mix64(mut z: u64) -> u64 {
 pub fn sample_surface(mesh: &Mesh, count: usize, seed: u64) -> Result<SurfaceSamples> {
     if count == 0 {
         return Err(Error::invalid("sample count", "at least 1 point, got 0"));
+    }
+    if count > MAX_SAMPLES {
+        return Err(Error::invalid(
+            "sample count",
+            format!("at most {MAX_SAMPLES} points (~24 bytes each, plus a k-d tree to match them), got {count}"),
+        ));
     }
     let corners: Vec<[DVec3; 3]> =
         (0..mesh.triangle_count()).map(|t| mesh.triangle_corners(t).map(|v| v.as_dvec3())).collect();
@@ -129,5 +140,10 @@ mod tests {
         assert!(sample_surface(&square(), 0, 0).unwrap_err().to_string().contains("sample count"));
         let flat = Mesh::new(vec![[0.0; 3], [1.0, 0.0, 0.0], [2.0, 0.0, 0.0]], vec![[0, 1, 2]]).unwrap();
         assert!(sample_surface(&flat, 10, 0).unwrap_err().to_string().contains("surface area"));
+        // 10¹¹ samples (1.2 TB) aborted the process on allocation: now a clear error.
+        let err = sample_surface(&square(), 100_000_000_000, 0).unwrap_err().to_string();
+        assert!(err.contains("at most 10000000"), "{err}");
+        let err = crate::evaluate(&square(), &square(), &crate::EvalOptions::default().with_samples(MAX_SAMPLES + 1));
+        assert!(err.unwrap_err().to_string().contains("options.samples"));
     }
 }

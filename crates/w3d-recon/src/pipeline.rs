@@ -227,6 +227,16 @@ pub fn reconstruct(
     progress: &mut dyn FnMut(Progress),
 ) -> Result<(Mesh, ReconReport)> {
     let start = Instant::now();
+    // Every view must see the object: name the empty one (integration would only say "mask").
+    for (i, (rv, v)) in views.iter().enumerate() {
+        if v.mask.data().iter().all(|&m| m < 0.5) {
+            return Err(Error::invalid(
+                format!("views[{i}].mask ({})", rv.name),
+                "a silhouette (at least one pixel with mask ≥ 0.5), got an empty mask: the object is outside \
+                 this view, or the views were rendered from a mesh without area",
+            ));
+        }
+    }
     progress(Progress { stage: Stage::Init, done: 0, total: 1, loss: None });
     // A Poisson start that misses a silhouette badly may sit in the wrong basin: also
     // optimise from the visual hull and keep the lower final loss.

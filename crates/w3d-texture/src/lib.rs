@@ -119,6 +119,34 @@ impl TextureOptions {
     pub fn atlas(&self) -> AtlasOptions {
         AtlasOptions { size: self.size, padding: self.padding, max_chart_angle_deg: self.max_chart_angle_deg }
     }
+
+    /// Checks every option against its range, the size before what is measured against it:
+    /// size 8 to 16384 texels, dilation at most the size, padding at most size / 8, a finite
+    /// view-weight exponent ≥ 0 and a chart angle in (0, 90) degrees. [`bake`] calls it
+    /// first; callers with long work before the bake (reconstruction) call it before that.
+    pub fn validate(&self) -> Result<()> {
+        if !(8..=16384).contains(&self.size) {
+            return Err(Error::invalid("size", format!("a texture side of 8 to 16384 texels, got {}", self.size)));
+        }
+        if self.dilation > self.size {
+            return Err(Error::invalid("dilation", format!("at most the texture size, got {}", self.dilation)));
+        }
+        if self.padding > self.size / 8 {
+            return Err(Error::invalid(
+                "padding",
+                format!("at most size / 8 = {} texels, got {}", self.size / 8, self.padding),
+            ));
+        }
+        let k = self.view_weight_exponent;
+        if !(k.is_finite() && k >= 0.0) {
+            return Err(Error::invalid("view_weight_exponent", format!("a finite value ≥ 0, got {k}")));
+        }
+        let angle = self.max_chart_angle_deg;
+        if !(angle > 0.0 && angle < 90.0) {
+            return Err(Error::invalid("max_chart_angle_deg", format!("an angle in (0, 90) degrees, got {angle}")));
+        }
+        Ok(())
+    }
 }
 
 /// Measurements of a bake.
@@ -245,9 +273,8 @@ pub fn bake_with_progress(
     progress: &mut dyn FnMut(BakeStage),
 ) -> Result<TexturedMesh> {
     let k = options.view_weight_exponent;
-    if options.dilation > options.size {
-        return Err(Error::invalid("dilation", format!("at most the texture size, got {}", options.dilation)));
-    }
+    // Every option first (`--size 0` used to be reported as a dilation problem).
+    options.validate()?;
     progress(BakeStage::FusingVertexColours);
     let (samplers, surface, normals, fused) = fuse_views(mesh, views, k)?;
 

@@ -129,6 +129,9 @@ fn views_without_colour_are_skipped_and_bad_input_is_an_error() {
     ] {
         assert!(bake(&geometry, &views, &bad).is_err(), "{bad:?}");
     }
+    // A zero size is reported as the size (it was reported as a dilation problem).
+    let err = bake(&geometry, &views, &options.with_size(0)).unwrap_err().to_string();
+    assert!(err.contains("size") && err.contains("8 to 16384") && !err.contains("dilation"), "{err}");
     // A mesh outside every view's frame: nothing is seen.
     let mut far = geometry.clone();
     far.map_positions(|p| p + w3d_core::glam::Vec3::new(0.0, 5.0, 0.0)).unwrap();

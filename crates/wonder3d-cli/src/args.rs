@@ -67,3 +67,131 @@ pub enum SchedulerArg {
     #[value(name = "dpmpp-2m")]
     DpmPp2m,
 }
+
+/// Orients a closed mesh read from `path` outward ([`wonder3d::Mesh::orient_outward`]),
+/// with a note on stderr when it was wound inward: normals, masks, texture visibility and
+/// volume IoU all assume outward triangles.
+pub fn orient_outward(mesh: &mut wonder3d::Mesh, path: &std::path::Path) {
+    if mesh.orient_outward() {
+        eprintln!("note: {} is a closed mesh wound inward (negative volume); using it flipped outward", path.display());
+    }
+}
+
+/// Largest `--size` of `wonder3d render` and `wonder3d demo`: a 4096² view set of the
+/// 16-view rig takes about 13 GB while rendering (rasters plus normal, colour, mask and
+/// depth images, ~50 bytes a pixel a view); larger sizes used to abort on allocation.
+pub const MAX_VIEW_SIZE: u32 = 4096;
+
+/// Largest `--size` / `--texture-size` of a baked texture: the bake keeps several float
+/// images of the atlas (~2 GB at 8192²).
+pub const MAX_TEXTURE_SIZE: u32 = 8192;
+
+/// Largest `wonder3d eval --samples`: ~1 GB of samples and k-d trees (10⁸ aborted on
+/// allocation, 10¹¹ asked for 1.2 TB).
+pub const MAX_EVAL_SAMPLES: usize = 10_000_000;
+
+/// A whole number in `lo..=hi`, read as a signed value so that `-1` gets this range
+/// message rather than clap's "unexpected argument" (whose `-- -1` tip cannot work for an
+/// option value).
+fn whole_in<T: TryFrom<i128>>(s: &str, lo: i128, hi: i128, unit: &str) -> Result<T, String> {
+    let range = || format!("a whole number from {lo} to {hi}{unit}");
+    let v: i128 = s.trim().parse().map_err(|_| format!("expected {}, got {s:?}", range()))?;
+    if v < lo || v > hi {
+        return Err(format!("expected {}, got {v}", range()));
+    }
+    T::try_from(v).map_err(|_| format!("expected {}, got {v}", range()))
+}
+
+/// A finite number in `lo..=hi` (NaN and infinities refused).
+fn finite_in(s: &str, lo: f64, hi: f64, what: &str) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|_| format!("expected {what} from {lo} to {hi}, got {s:?}"))?;
+    if !v.is_finite() || v < lo || v > hi {
+        return Err(format!("expected {what} from {lo} to {hi}, got {s}"));
+    }
+    Ok(v)
+}
+
+/// `--size` of rendered views: 1 to [`MAX_VIEW_SIZE`] pixels.
+pub fn view_size(s: &str) -> Result<u32, String> {
+    whole_in(s, 1, MAX_VIEW_SIZE.into(), " pixels (memory grows with the square)")
+}
+
+/// A texture side: 8 to [`MAX_TEXTURE_SIZE`] texels.
+pub fn texture_size(s: &str) -> Result<u32, String> {
+    whole_in(s, 8, MAX_TEXTURE_SIZE.into(), " texels (memory grows with the square)")
+}
+
+/// Texels of padding or dilation: 0 to 1024 (the bake also checks them against the size).
+pub fn texels(s: &str) -> Result<u32, String> {
+    whole_in(s, 0, 1024, " texels")
+}
+
+/// `--samples` of `wonder3d eval`: 1 to [`MAX_EVAL_SAMPLES`].
+pub fn eval_samples(s: &str) -> Result<usize, String> {
+    whole_in(s, 1, MAX_EVAL_SAMPLES as i128, " surface samples")
+}
+
+/// A seed: 0 to 2⁶⁴ − 1.
+pub fn seed(s: &str) -> Result<u64, String> {
+    whole_in(s, 0, u64::MAX.into(), "")
+}
+
+/// DDIM steps: 1 to 1000 (the scheduler's training steps).
+pub fn steps(s: &str) -> Result<usize, String> {
+    whole_in(s, 1, 1000, " steps")
+}
+
+/// Classifier-free guidance scale: finite, 0 to 100 (1 = no unconditional branch).
+pub fn guidance(s: &str) -> Result<f64, String> {
+    finite_in(s, 0.0, 100.0, "a guidance scale")
+}
+
+/// DDIM eta: finite, 0 (deterministic) to 1 (the reference's stochastic sampling).
+pub fn eta(s: &str) -> Result<f64, String> {
+    finite_in(s, 0.0, 1.0, "an eta")
+}
+
+/// The texture view-weight exponent k of |cos|^k: finite, 0 to 64.
+pub fn exponent(s: &str) -> Result<f32, String> {
+    finite_in(s, 0.0, 64.0, "an exponent").map(|v| v as f32)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn numbers_are_checked_with_their_range() {
+        assert_eq!(seed("0"), Ok(0));
+        assert_eq!(seed("18446744073709551615"), Ok(u64::MAX));
+        for bad in ["-1", "18446744073709551616", "1.5", "", "x"] {
+            let err = seed(bad).unwrap_err();
+            assert!(err.contains("from 0 to 18446744073709551615"), "{bad}: {err}");
+        }
+        assert_eq!(view_size("4096"), Ok(4096));
+        assert!(view_size("16384").unwrap_err().contains("1 to 4096 pixels"));
+        assert!(view_size("0").is_err() && view_size("-3").is_err());
+        assert_eq!(texture_size("8"), Ok(8));
+        assert!(texture_size("0").unwrap_err().contains("from 8 to 8192 texels"));
+        assert!(eval_samples("100000000000").unwrap_err().contains("1 to 10000000 surface samples"));
+        assert_eq!(eval_samples("20000"), Ok(20000));
+        assert_eq!(steps("50"), Ok(50));
+        assert!(steps("0").is_err() && steps("-5").is_err());
+        assert_eq!(texels("0"), Ok(0));
+        assert!(texels("-1").is_err());
+    }
+
+    #[test]
+    fn floats_must_be_finite_and_in_range() {
+        assert_eq!(guidance("2"), Ok(2.0));
+        assert_eq!(guidance("1e1"), Ok(10.0));
+        for bad in ["NaN", "nan", "inf", "-inf", "-1", "1e30", "two"] {
+            let err = guidance(bad).unwrap_err();
+            assert!(err.contains("a guidance scale from 0 to 100"), "{bad}: {err}");
+        }
+        assert_eq!(eta("0"), Ok(0.0));
+        assert!(eta("1.5").is_err() && eta("NaN").is_err());
+        assert_eq!(exponent("4"), Ok(4.0));
+        assert!(exponent("inf").is_err() && exponent("-2").is_err());
+    }
+}

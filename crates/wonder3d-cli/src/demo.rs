@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use wonder3d::demo::{DemoOptions, run_demo};
-use wonder3d::{Result, check_parent};
+use wonder3d::{Result, check_out_folder};
 
 use crate::args::PresetArg;
 use crate::progress;
@@ -19,10 +19,10 @@ pub struct DemoArgs {
     #[arg(long, value_enum, default_value_t = PresetArg::Default)]
     preset: PresetArg,
     /// Side of the rendered views in pixels.
-    #[arg(long, default_value_t = DemoOptions::default().view_size)]
+    #[arg(long, default_value_t = DemoOptions::default().view_size, allow_hyphen_values = true, value_parser = crate::args::view_size)]
     size: u32,
     /// Side of the baked texture in texels.
-    #[arg(long, default_value_t = DemoOptions::default().texture_size)]
+    #[arg(long, default_value_t = DemoOptions::default().texture_size, allow_hyphen_values = true, value_parser = crate::args::texture_size)]
     texture_size: u32,
     /// No progress bars.
     #[arg(long)]
@@ -31,7 +31,8 @@ pub struct DemoArgs {
 
 /// Runs `wonder3d demo`.
 pub fn run(args: &DemoArgs) -> Result<()> {
-    check_parent(&args.out)?;
+    check_out_folder(&args.out)?;
+    wonder3d::TextureOptions::default().with_size(args.texture_size).validate()?;
     let options = DemoOptions::default()
         .with_preset(args.preset.into())
         .with_view_size(args.size)

@@ -25,10 +25,10 @@ pub struct EvalArgs {
     #[arg(long)]
     normalize_pred: bool,
     /// Surface samples per mesh.
-    #[arg(long, default_value_t = EvalOptions::default().samples)]
+    #[arg(long, default_value_t = EvalOptions::default().samples, allow_hyphen_values = true, value_parser = crate::args::eval_samples)]
     samples: usize,
     /// Sampling seed.
-    #[arg(long, default_value_t = 0)]
+    #[arg(long, default_value_t = 0, allow_hyphen_values = true, value_parser = crate::args::seed)]
     seed: u64,
     /// Also compute SyncDreamer's visible-surface Chamfer (16 depth views at 256², voxel
     /// down-sampling at 0.01); JSON key `visible_chamfer`.
@@ -90,6 +90,8 @@ impl Report {
 pub fn run(args: &EvalArgs) -> Result<()> {
     let mut pred = load_mesh(&args.pred)?;
     let mut gt = load_mesh(&args.gt)?;
+    crate::args::orient_outward(&mut pred, &args.pred);
+    crate::args::orient_outward(&mut gt, &args.gt);
     // The frames `evaluate` compares in, needed as well by the visible Chamfer and ICP.
     gt.normalize_unit_cube();
     if args.normalize_pred {

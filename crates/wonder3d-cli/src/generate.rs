@@ -2,9 +2,13 @@
 //! [--scheduler ddim|dpmpp-2m] [--steps N] [--guidance G] [--eta E] [--seed S]`: the 6 normal + 6 colour views of an RGBA image from the
 //! Wonder3D++ multi-view diffusion model, written as a view-set folder with a contact sheet.
 
-use std::path::{Path, PathBuf};
+#[cfg(feature = "diffusion")]
+use std::path::Path;
+use std::path::PathBuf;
 
-use wonder3d::{Error, Result};
+#[cfg(not(feature = "diffusion"))]
+use wonder3d::Error;
+use wonder3d::Result;
 
 use crate::args::{CameraArg, SchedulerArg};
 
@@ -23,16 +27,16 @@ pub struct ModelArgs {
     #[arg(long, value_enum, default_value_t = SchedulerArg::Ddim)]
     pub scheduler: SchedulerArg,
     /// Sampling steps (50 is the authors' DDIM setting; 20 with dpmpp-2m).
-    #[arg(long, default_value_t = 50)]
+    #[arg(long, default_value_t = 50, allow_hyphen_values = true, value_parser = crate::args::steps)]
     pub steps: usize,
     /// Classifier-free guidance scale (1 = no unconditional branch).
-    #[arg(long, default_value_t = 2.0)]
+    #[arg(long, default_value_t = 2.0, allow_hyphen_values = true, value_parser = crate::args::guidance)]
     pub guidance: f64,
     /// DDIM eta: 0 deterministic, 1 the reference's stochastic sampling (dpmpp-2m ignores it).
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(long, default_value_t = 1.0, allow_hyphen_values = true, value_parser = crate::args::eta)]
     pub eta: f64,
     /// Seed of all sampling noise (the same seed gives the same views).
-    #[arg(long, default_value_t = 42)]
+    #[arg(long, default_value_t = 42, allow_hyphen_values = true, value_parser = crate::args::seed)]
     pub seed: u64,
 }
 
@@ -51,21 +55,6 @@ pub struct GenerateArgs {
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
-}
-
-/// Fails unless `dir` can become an output folder (not an existing file; its parent exists).
-#[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
-pub fn check_out_dir(dir: &Path) -> Result<()> {
-    if dir.is_file() {
-        return Err(Error::invalid(format!("output {}", dir.display()), "a folder, but it is a file"));
-    }
-    match dir.parent() {
-        Some(p) if !p.as_os_str().is_empty() && !p.is_dir() => Err(Error::invalid(
-            format!("output {}", dir.display()),
-            format!("a folder inside an existing one; create {} first", p.display()),
-        )),
-        _ => Ok(()),
-    }
 }
 
 #[cfg(feature = "diffusion")]
@@ -96,10 +85,9 @@ mod with_model {
         Ok(Generator::load(&args.weights)?.with_options(options))
     }
 
-    /// Writes the view set, `input.png` and the labelled `views.png` into `dir`.
+    /// Writes the view set, `input.png` and the labelled `views.png` into `dir`, all at once
+    /// (`ViewSet::save_with`: a failure leaves `dir` as it was).
     pub fn save_generated(generated: &Generated, dir: &Path) -> Result<()> {
-        generated.views.save(dir)?;
-        generated.input.write_png(dir.join("input.png"))?;
         let mut colours = SheetRow { label: "colour".into(), images: Vec::new() };
         let mut normals = SheetRow { label: "normal".into(), images: Vec::new() };
         for v in generated.views.views() {
@@ -109,12 +97,16 @@ mod with_model {
             normals.images.push(normal_picture(&v.normal, &v.mask)?);
         }
         let names: Vec<&str> = generated.views.rig().views.iter().map(|v| v.name.as_str()).collect();
-        contact_sheet(&names, &[colours, normals])?.write_png(dir.join("views.png"))
+        let sheet = contact_sheet(&names, &[colours, normals])?;
+        generated.views.save_with(dir, |staging: &Path| {
+            generated.input.write_png(staging.join("input.png"))?;
+            sheet.write_png(staging.join("views.png"))
+        })
     }
 
     /// Runs `wonder3d generate`.
     pub fn run(args: &GenerateArgs) -> Result<()> {
-        check_out_dir(&args.out)?;
+        wonder3d::check_out_dir(&args.out)?;
         let rgba = Image::read_png(&args.image)?;
         let bar = progress::bar(args.quiet)?;
         bar.set_prefix("load");

@@ -22,6 +22,9 @@ struct MeshInfo {
     file: String,
     vertices: usize,
     triangles: usize,
+    /// Zero-area triangles (two corners at one position, or collinear corners); merging
+    /// drops the first kind, so they are not in `faces`.
+    degenerate_triangles: usize,
     merged_vertices: usize,
     edges: usize,
     faces: usize,
@@ -51,6 +54,7 @@ pub fn run(args: &InfoArgs) -> Result<()> {
         file: args.mesh.display().to_string(),
         vertices: mesh.vertex_count(),
         triangles: mesh.triangle_count(),
+        degenerate_triangles: mesh.degenerate_triangle_count(),
         merged_vertices: topo.vertices,
         edges: topo.edges,
         faces: topo.faces,
@@ -76,12 +80,17 @@ pub fn run(args: &InfoArgs) -> Result<()> {
     println!("{}", info.file);
     println!("  vertices      {} ({} after merging by position)", info.vertices, info.merged_vertices);
     println!("  triangles     {}", info.triangles);
+    if info.degenerate_triangles > 0 {
+        println!("  degenerate    {} triangles of zero area (no orientation, no surface)", info.degenerate_triangles);
+    }
     println!("  edges         {}", info.edges);
     let [a, b, c] = info.bbox_min;
     let [d, e, f] = info.bbox_max;
     println!("  bbox          [{a:.4}, {b:.4}, {c:.4}] -> [{d:.4}, {e:.4}, {f:.4}]");
     if info.watertight {
         println!("  watertight    yes");
+    } else if info.faces == 0 {
+        println!("  watertight    no (no triangle of non-zero size is left after merging by position)");
     } else {
         println!(
             "  watertight    no ({} boundary edges, {} non-manifold edges)",

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use wonder3d::core::io::write_atomic;
-use wonder3d::{Error, Pipeline, Result, ViewSet, check_mesh_output, check_parent};
+use wonder3d::{Error, Pipeline, Result, ViewSet, check_outputs};
 
 use crate::args::PresetArg;
 use crate::progress;
@@ -30,10 +30,7 @@ pub struct ReconstructArgs {
 
 /// Runs `wonder3d reconstruct`: the closed mesh, untextured.
 pub fn run(args: &ReconstructArgs) -> Result<()> {
-    check_mesh_output(&args.out)?;
-    if let Some(path) = &args.report {
-        check_parent(path)?;
-    }
+    check_outputs(&args.out, args.report.as_deref(), None)?;
     let views = ViewSet::load(&args.views)?;
     let bar = progress::bar(args.quiet)?;
     let output = Pipeline::new()

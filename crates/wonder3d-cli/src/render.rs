@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use wonder3d::{Result, load_mesh};
+use wonder3d::{Result, check_out_dir, load_mesh};
 
 use crate::args::RigArg;
 
@@ -15,9 +15,10 @@ pub struct RenderArgs {
     #[arg(long, value_enum, default_value_t = RigArg::Wonder3dOrtho)]
     rig: RigArg,
     /// Image width and height in pixels.
-    #[arg(long, default_value_t = 256)]
+    #[arg(long, default_value_t = 256, allow_hyphen_values = true, value_parser = crate::args::view_size)]
     size: u32,
-    /// Output folder (created if needed).
+    /// Output folder: a new folder, or an earlier view-set folder, which is replaced once
+    /// the new views are complete (a failure leaves it as it was).
     #[arg(long)]
     out: PathBuf,
     /// Render the mesh in its own coordinates instead of normalising it to the unit cube.
@@ -28,8 +29,10 @@ pub struct RenderArgs {
 /// Runs `wonder3d render`: normal, colour and mask PNGs, normal and depth EXRs and
 /// `cameras.json` in the view-set folder layout.
 pub fn run(args: &RenderArgs) -> Result<()> {
+    check_out_dir(&args.out)?;
     let rig = args.rig.rig();
     let mut mesh = load_mesh(&args.mesh)?;
+    crate::args::orient_outward(&mut mesh, &args.mesh);
     if !args.no_normalize {
         mesh.normalize_unit_cube();
     }

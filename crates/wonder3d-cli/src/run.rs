@@ -25,7 +25,7 @@ pub struct RunArgs {
     #[arg(long, value_enum, default_value_t = PresetArg::Default)]
     preset: PresetArg,
     /// Side of the baked texture in texels.
-    #[arg(long, default_value_t = TextureOptions::default().size)]
+    #[arg(long, default_value_t = TextureOptions::default().size, allow_hyphen_values = true, value_parser = crate::args::texture_size)]
     texture_size: u32,
     /// Also write the run's report (generation settings, stage timings, reconstruction and
     /// texture measurements) as JSON.
@@ -40,17 +40,12 @@ pub struct RunArgs {
 #[cfg(feature = "diffusion")]
 pub fn run(args: &RunArgs) -> Result<()> {
     use wonder3d::core::io::write_atomic;
-    use wonder3d::{Error, Image, Pipeline, check_mesh_output, check_parent};
+    use wonder3d::{Error, Image, Pipeline, check_outputs};
 
     use crate::{generate, progress};
 
-    check_mesh_output(&args.out)?;
-    if let Some(dir) = &args.views {
-        generate::check_out_dir(dir)?;
-    }
-    if let Some(path) = &args.report {
-        check_parent(path)?;
-    }
+    check_outputs(&args.out, args.report.as_deref(), args.views.as_deref())?;
+    TextureOptions::default().with_size(args.texture_size).validate()?;
     let rgba = Image::read_png(&args.image)?;
     let bar = progress::bar(args.quiet)?;
     bar.set_prefix("load");

@@ -16,20 +16,21 @@ pub struct TextureArgs {
     /// View-set folder (`cameras.json`, `colour_<view>.png`, masks, normals), as written by
     /// `wonder3d render` or `wonder3d generate`.
     views: PathBuf,
-    /// Output file: `.glb` (embedded PNG texture) or `.obj` (+ `.mtl` + `.png` beside it).
+    /// Output file: `.glb` (embedded PNG texture) or `.obj` (+ `.mtl` + `.png` beside it; all
+    /// three are checked before any work and written together at the end).
     #[arg(long)]
     out: PathBuf,
     /// Texture width and height in texels.
-    #[arg(long, default_value_t = TextureOptions::default().size)]
+    #[arg(long, default_value_t = TextureOptions::default().size, allow_hyphen_values = true, value_parser = crate::args::texture_size)]
     size: u32,
     /// Empty texels around each chart in the atlas.
-    #[arg(long, default_value_t = TextureOptions::default().padding)]
+    #[arg(long, default_value_t = TextureOptions::default().padding, allow_hyphen_values = true, value_parser = crate::args::texels)]
     padding: u32,
     /// Texel rings grown outwards from the charts after baking.
-    #[arg(long, default_value_t = TextureOptions::default().dilation)]
+    #[arg(long, default_value_t = TextureOptions::default().dilation, allow_hyphen_values = true, value_parser = crate::args::texels)]
     dilation: u32,
     /// Exponent k of the view weight |cos(view, normal)|^k.
-    #[arg(long, default_value_t = TextureOptions::default().view_weight_exponent)]
+    #[arg(long, default_value_t = TextureOptions::default().view_weight_exponent, allow_hyphen_values = true, value_parser = crate::args::exponent)]
     exponent: f32,
     /// Write the fused per-vertex colours instead of a texture (no uv atlas; the fallback
     /// for viewers without texture support).
@@ -47,16 +48,18 @@ pub struct TextureArgs {
 /// Runs `wonder3d texture`.
 pub fn run(args: &TextureArgs) -> Result<()> {
     check_mesh_output(&args.out)?;
-    let mut mesh = load_mesh(&args.mesh)?.without_attributes();
-    if args.normalize {
-        mesh.normalize_unit_cube();
-    }
-    let views = ViewSet::load(&args.views)?;
     let options = TextureOptions::default()
         .with_size(args.size)
         .with_padding(args.padding)
         .with_dilation(args.dilation)
         .with_view_weight_exponent(args.exponent);
+    options.validate()?;
+    let mut mesh = load_mesh(&args.mesh)?.without_attributes();
+    crate::args::orient_outward(&mut mesh, &args.mesh);
+    if args.normalize {
+        mesh.normalize_unit_cube();
+    }
+    let views = ViewSet::load(&args.views)?;
     if args.vertex_colours {
         let fused = fuse_vertex_colours(&mesh, &views, &options)?;
         save_mesh(&args.out, &fused.mesh)?;

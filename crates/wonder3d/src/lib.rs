@@ -48,7 +48,8 @@ pub mod sheet;
 #[cfg(feature = "diffusion")]
 pub use generate::{Generated, Generator};
 pub use pipeline::{
-    GenerationReport, Output, Pipeline, Progress, Report, Seconds, Stage, TextureStage, check_mesh_output, check_parent,
+    GenerationReport, Output, Pipeline, Progress, Report, Seconds, Stage, TextureStage, check_mesh_output,
+    check_out_dir, check_out_folder, check_outputs, check_parent, mesh_output_files,
 };
 /// Meshes, cameras, view rigs, images, view sets and file IO (the `w3d-core` crate).
 pub use w3d_core as core;

@@ -16,12 +16,9 @@ use crate::{Error, Mesh, Result};
 /// the first primitive's base-colour texture are kept when every primitive has them.
 pub fn read_gltf(path: impl AsRef<Path>) -> Result<Mesh> {
     let path = path.as_ref();
-    std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
-    let imported = gltf::import(path).map_err(|e| match e {
-        gltf::Error::Io(io) => Error::io(path, io),
-        other => Error::format(path, "glTF data", format!("a valid glTF 2.0 file ({other})")),
-    })?;
-    mesh_from_document(path, imported)
+    let bytes = crate::io::read_input(path)?;
+    let is_glb = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("glb"));
+    import(path, &bytes, is_glb, Some(path.parent().unwrap_or(Path::new("."))))
 }
 
 /// Reads a self-contained `.glb` (or `.gltf` with data-URI buffers and images) from memory,
@@ -36,9 +33,292 @@ pub fn read_gltf(path: impl AsRef<Path>) -> Result<Mesh> {
 /// ```
 pub fn read_glb_bytes(name: impl AsRef<Path>, bytes: &[u8]) -> Result<Mesh> {
     let name = name.as_ref();
-    let imported = gltf::import_slice(bytes)
-        .map_err(|e| Error::format(name, "glTF data", format!("a valid self-contained glTF 2.0 binary ({e})")))?;
-    mesh_from_document(name, imported)
+    import(name, bytes, bytes.starts_with(b"glTF"), None)
+}
+
+/// Parses and checks a glTF document, loads its buffers and images (external files
+/// relative to `base`; none when `base` is `None`) and builds the mesh. Before anything is
+/// read through an accessor, the GLB container (when `glb`) and every byte range the
+/// triangle primitives use are checked against the data really present, so a damaged file
+/// is an error naming the part instead of a panic, a huge allocation or silently missing
+/// data.
+fn import(path: &Path, bytes: &[u8], glb: bool, base: Option<&Path>) -> Result<Mesh> {
+    if bytes.is_empty() {
+        return Err(Error::format(path, "file", "a glTF file, got an empty file"));
+    }
+    let json = if glb || bytes.starts_with(b"glTF") { check_glb_container(path, bytes)? } else { bytes };
+    check_json_references(path, json)?;
+    // The glTF crate still has panics on some malformed documents (unchecked indices,
+    // `unwrap`s on optional fields); the checks above cover the known ones, and a panic
+    // left is turned into an error here rather than taking the process down.
+    let imported = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| -> Result<Mesh> {
+        let gltf = gltf::Gltf::from_slice(bytes).map_err(|e| {
+            let what =
+                if bytes.starts_with(b"glTF") { "a valid binary glTF 2.0 (GLB) file" } else { "valid glTF 2.0 JSON" };
+            Error::format(path, "glTF data", format!("{what} ({e})"))
+        })?;
+        let gltf::Gltf { document, blob } = gltf;
+        check_external_files(path, &document, base)?;
+        let buffers = gltf::import_buffers(&document, base, blob).map_err(|e| gltf_error(path, "buffers", e))?;
+        check_image_views(path, &document, &buffers)?;
+        let images = gltf::import_images(&document, base, &buffers).map_err(|e| gltf_error(path, "images", e))?;
+        mesh_from_document(path, (document, buffers, images))
+    }));
+    imported.unwrap_or_else(|_| {
+        Err(Error::format(path, "glTF data", "a glTF 2.0 document the reader can process (it failed on this one)"))
+    })
+}
+
+/// Checks the references of a glTF JSON document that the glTF crate follows without
+/// checking (and panics on): every primitive attribute and index accessor must exist,
+/// and every image must have a `uri` or a `bufferView` (with a `mimeType`) that exists.
+/// Malformed JSON is left to the reader, which reports it.
+fn check_json_references(path: &Path, json: &[u8]) -> Result<()> {
+    let Ok(root) = serde_json::from_slice::<serde_json::Value>(json) else { return Ok(()) };
+    let count = |key: &str| root.get(key).and_then(|v| v.as_array()).map_or(0, Vec::len);
+    let (accessors, views) = (count("accessors"), count("bufferViews"));
+    let index_below = |v: &serde_json::Value, n: usize| v.as_u64().is_some_and(|i| i < n as u64);
+    let bad = |field: String, expected: String| Err(Error::format(path, field, expected));
+    let empty = Vec::new();
+    let list = |v: Option<&serde_json::Value>| v.and_then(|v| v.as_array()).unwrap_or(&empty).clone();
+    for (m, mesh) in list(root.get("meshes")).iter().enumerate() {
+        for (p, primitive) in list(mesh.get("primitives")).iter().enumerate() {
+            let field = format!("meshes[{m}].primitives[{p}]");
+            if let Some(attributes) = primitive.get("attributes").and_then(|a| a.as_object()) {
+                for (name, index) in attributes {
+                    if !index_below(index, accessors) {
+                        return bad(
+                            format!("{field}.attributes.{name}"),
+                            format!("an accessor index below {accessors}, got {index}"),
+                        );
+                    }
+                }
+            }
+            if let Some(index) = primitive.get("indices")
+                && !index_below(index, accessors)
+            {
+                return bad(format!("{field}.indices"), format!("an accessor index below {accessors}, got {index}"));
+            }
+        }
+    }
+    for (i, image) in list(root.get("images")).iter().enumerate() {
+        let field = format!("images[{i}]");
+        match (image.get("uri"), image.get("bufferView")) {
+            (Some(uri), None) if uri.is_string() => {}
+            (None, Some(view)) => {
+                if !index_below(view, views) {
+                    return bad(format!("{field}.bufferView"), format!("a bufferView index below {views}, got {view}"));
+                }
+                if !image.get("mimeType").is_some_and(|m| m.is_string()) {
+                    return bad(format!("{field}.mimeType"), "a mimeType for an image in a bufferView".into());
+                }
+            }
+            _ => return bad(field, "either a uri or a bufferView".into()),
+        }
+    }
+    Ok(())
+}
+
+fn gltf_error(path: &Path, field: &str, e: gltf::Error) -> Error {
+    match e {
+        gltf::Error::Io(io) => Error::io(path, io),
+        other => Error::format(path, field, format!("data a glTF 2.0 reader can load ({other})")),
+    }
+}
+
+/// The 12-byte GLB header and the chunk headers: magic `glTF`, version 2, the total length
+/// equal to the file's, chunks inside the file.
+fn check_glb_container<'a>(path: &Path, bytes: &'a [u8]) -> Result<&'a [u8]> {
+    let bad = |field: &str, expected: String| Err(Error::format(path, field, expected));
+    if bytes.len() < 12 {
+        return bad("GLB header", format!("12 bytes (magic, version, length), got a {}-byte file", bytes.len()));
+    }
+    let word = |at: usize| u32::from_le_bytes([bytes[at], bytes[at + 1], bytes[at + 2], bytes[at + 3]]);
+    if &bytes[..4] != b"glTF" {
+        return bad("GLB magic", format!("the bytes `glTF` that start a binary glTF file, got {:?}", &bytes[..4]));
+    }
+    if word(4) != 2 {
+        return bad("GLB version", format!("2, got {}", word(4)));
+    }
+    if word(8) as usize != bytes.len() {
+        return bad(
+            "GLB length",
+            format!("the file's size, {} bytes, got {} (a truncated or padded file)", bytes.len(), word(8)),
+        );
+    }
+    let mut at = 12;
+    let mut chunk = 0;
+    let mut json: &[u8] = &[];
+    while at < bytes.len() {
+        if bytes.len() - at < 8 {
+            return bad(
+                &format!("GLB chunk {chunk}"),
+                format!("an 8-byte chunk header, got {} bytes", bytes.len() - at),
+            );
+        }
+        let len = word(at) as usize;
+        if len > bytes.len() - at - 8 {
+            return bad(
+                &format!("GLB chunk {chunk}"),
+                format!("a length within the file ({} bytes left), got {len}", bytes.len() - at - 8),
+            );
+        }
+        if chunk == 0 {
+            json = &bytes[at + 8..at + 8 + len];
+        }
+        at += 8 + len;
+        chunk += 1;
+    }
+    if chunk == 0 {
+        return bad("GLB chunks", "a JSON chunk after the header, got none".into());
+    }
+    Ok(json)
+}
+
+/// External buffers and images must be regular files (not a folder or a device that never
+/// ends, such as `/dev/zero`), buffers at least as long as they claim.
+fn check_external_files(path: &Path, document: &gltf::Document, base: Option<&Path>) -> Result<()> {
+    let Some(base) = base else { return Ok(()) };
+    let external = |uri: &str| -> Option<std::path::PathBuf> {
+        let uri = uri.strip_prefix("file://").or_else(|| uri.strip_prefix("file:")).unwrap_or(uri);
+        (!uri.starts_with("data:") && !uri.contains("://")).then(|| base.join(uri))
+    };
+    let check = |field: String, file: std::path::PathBuf, min_len: u64| -> Result<()> {
+        // A name that does not resolve here (percent-encoded, say) is left to the reader.
+        let Ok(meta) = std::fs::metadata(&file) else { return Ok(()) };
+        if !meta.is_file() {
+            return Err(Error::format(path, field, format!("a regular file, {} is not one", file.display())));
+        }
+        if meta.len() < min_len {
+            return Err(Error::format(
+                path,
+                field,
+                format!("{min_len} bytes in {}, it has {}", file.display(), meta.len()),
+            ));
+        }
+        Ok(())
+    };
+    for buffer in document.buffers() {
+        if let gltf::buffer::Source::Uri(uri) = buffer.source()
+            && let Some(file) = external(uri)
+        {
+            check(format!("buffers[{}].uri", buffer.index()), file, buffer.length() as u64)?;
+        }
+    }
+    for image in document.images() {
+        if let gltf::image::Source::Uri { uri, .. } = image.source()
+            && let Some(file) = external(uri)
+        {
+            check(format!("images[{}].uri", image.index()), file, 0)?;
+        }
+    }
+    Ok(())
+}
+
+/// A buffer view's byte range, which must lie inside its loaded buffer.
+fn view_range(
+    path: &Path,
+    view: &gltf::buffer::View,
+    buffers: &[gltf::buffer::Data],
+) -> Result<std::ops::Range<usize>> {
+    let available = buffers.get(view.buffer().index()).map_or(0, |b| b.len());
+    let start = view.offset();
+    match start.checked_add(view.length()) {
+        Some(end) if end <= available => Ok(start..end),
+        _ => Err(Error::format(
+            path,
+            format!("bufferViews[{}]", view.index()),
+            format!(
+                "a byte range inside buffer {} ({available} bytes), got {} bytes from offset {start}",
+                view.buffer().index(),
+                view.length()
+            ),
+        )),
+    }
+}
+
+/// Images stored in buffer views must lie inside their buffer (the glTF reader slices
+/// them without checking).
+fn check_image_views(path: &Path, document: &gltf::Document, buffers: &[gltf::buffer::Data]) -> Result<()> {
+    for image in document.images() {
+        if let gltf::image::Source::View { view, .. } = image.source() {
+            view_range(path, &view, buffers)?;
+        }
+    }
+    Ok(())
+}
+
+/// Checks that `accessor` can be read in full: it has a buffer view (or is sparse), and
+/// `count` elements at its offset and stride fit inside that view, which fits inside its
+/// buffer. The glTF reader silently returns nothing for an accessor that overruns its
+/// view (an overlong index accessor was read as an unindexed triangle soup).
+fn check_accessor(path: &Path, field: &str, accessor: &gltf::Accessor, buffers: &[gltf::buffer::Data]) -> Result<()> {
+    let bad =
+        |expected: String| Err(Error::format(path, format!("{field} (accessors[{}])", accessor.index()), expected));
+    let (count, size) = (accessor.count(), accessor.size());
+    if count == 0 {
+        return bad("at least one element, got count 0".into());
+    }
+    match accessor.view() {
+        Some(view) => {
+            let range = view_range(path, &view, buffers)?;
+            let stride = view.stride().unwrap_or(size);
+            if stride < size {
+                return bad(format!("a byteStride of at least the element size {size}, got {stride}"));
+            }
+            let needed = (count - 1)
+                .checked_mul(stride)
+                .and_then(|n| n.checked_add(size))
+                .and_then(|n| n.checked_add(accessor.offset()));
+            if needed.is_none_or(|n| n > range.len()) {
+                return bad(format!(
+                    "{count} elements of {size} bytes (stride {stride}) from offset {} inside bufferViews[{}] of {} \
+                     bytes (an accessor longer than its view: a damaged or truncated file)",
+                    accessor.offset(),
+                    view.index(),
+                    range.len()
+                ));
+            }
+        }
+        None if accessor.sparse().is_none() => {
+            return bad("a bufferView (or sparse values) holding its data, got neither".into());
+        }
+        None => {
+            // All-zero base values plus sparse substitutions: a count the file cannot back
+            // would only allocate zeros.
+            let file_bytes: usize = buffers.iter().map(|b| b.len()).sum();
+            if count > file_bytes {
+                return bad(format!("at most as many elements as the buffers have bytes ({file_bytes}), got {count}"));
+            }
+        }
+    }
+    if let Some(sparse) = accessor.sparse() {
+        let indices = sparse.indices();
+        let values = sparse.values();
+        let parts = [
+            ("sparse.indices", indices.view(), indices.offset(), indices.index_type().size()),
+            ("sparse.values", values.view(), values.offset(), size),
+        ];
+        for (what, view, offset, elem) in parts {
+            let range = view_range(path, &view, buffers)?;
+            let stride = view.stride().unwrap_or(elem).max(elem);
+            let needed = sparse
+                .count()
+                .checked_sub(1)
+                .and_then(|c| c.checked_mul(stride))
+                .and_then(|n| n.checked_add(elem))
+                .and_then(|n| n.checked_add(offset));
+            if needed.is_none_or(|n| n > range.len()) {
+                return bad(format!(
+                    "{what}: {} elements inside bufferViews[{}] of {} bytes",
+                    sparse.count(),
+                    view.index(),
+                    range.len()
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The mesh of an imported glTF document (see [`read_gltf`]); `path` names it in errors.
@@ -52,7 +332,17 @@ fn mesh_from_document(
         None => doc.nodes().collect(),
     };
     let mut stack: Vec<(gltf::Node, Mat4)> = roots.into_iter().map(|n| (n, Mat4::IDENTITY)).collect();
+    // glTF nodes form strict trees: a node met twice is a cycle (which would never end) or a
+    // shared child, both invalid.
+    let mut seen = vec![false; doc.nodes().len()];
     while let Some((node, parent)) = stack.pop() {
+        if std::mem::replace(&mut seen[node.index()], true) {
+            return Err(Error::format(
+                path,
+                format!("nodes[{}]", node.index()),
+                "a node hierarchy of strict trees (no cycles, no node with two parents)",
+            ));
+        }
         let world = parent * Mat4::from_cols_array_2d(&node.transform().matrix());
         if let Some(mesh) = node.mesh() {
             for (p, primitive) in mesh.primitives().enumerate() {
@@ -73,6 +363,9 @@ fn mesh_from_document(
     }
     acc.finish(path)
 }
+
+/// The component types and element types an accessor may have.
+type Kinds = (&'static [gltf::accessor::DataType], &'static [gltf::accessor::Dimensions]);
 
 #[derive(Default)]
 struct Accumulator {
@@ -95,6 +388,40 @@ impl Accumulator {
         world: Mat4,
         field: &str,
     ) -> Result<()> {
+        let position = primitive
+            .get(&gltf::Semantic::Positions)
+            .ok_or_else(|| Error::format(path, format!("{field}.attributes"), "a POSITION accessor"))?;
+        // Every accessor read below, with the types the reader handles (it panics on others).
+        use gltf::Semantic as S;
+        use gltf::accessor::{DataType as T, Dimensions as D};
+        let float_vec3: Kinds = (&[T::F32], &[D::Vec3]);
+        let checks: [(String, Option<gltf::Accessor>, Kinds); 5] = [
+            ("attributes.POSITION".into(), Some(position), float_vec3),
+            ("indices".into(), primitive.indices(), (&[T::U8, T::U16, T::U32], &[D::Scalar])),
+            ("attributes.NORMAL".into(), primitive.get(&S::Normals), float_vec3),
+            ("attributes.TEXCOORD_0".into(), primitive.get(&S::TexCoords(0)), (&[T::U8, T::U16, T::F32], &[D::Vec2])),
+            (
+                "attributes.COLOR_0".into(),
+                primitive.get(&S::Colors(0)),
+                (&[T::U8, T::U16, T::F32], &[D::Vec3, D::Vec4]),
+            ),
+        ];
+        for (name, accessor, (types, dims)) in checks {
+            let Some(accessor) = accessor else { continue };
+            let name = format!("{field}.{name}");
+            if !types.contains(&accessor.data_type()) || !dims.contains(&accessor.dimensions()) {
+                return Err(Error::format(
+                    path,
+                    format!("{name} (accessors[{}])", accessor.index()),
+                    format!(
+                        "component type one of {types:?} and type one of {dims:?}, got {:?} {:?}",
+                        accessor.data_type(),
+                        accessor.dimensions()
+                    ),
+                ));
+            }
+            check_accessor(path, &name, &accessor, buffers)?;
+        }
         let reader = primitive.reader(|b| buffers.get(b.index()).map(|d| &d.0[..]));
         let positions: Vec<[f32; 3]> = reader
             .read_positions()

@@ -4,6 +4,7 @@
 //! goes to a temporary file beside the destination and is renamed into place, so a
 //! failed write never leaves a half-written file.
 
+mod exr_limits;
 mod gltf_io;
 mod obj;
 mod ply;
@@ -12,6 +13,7 @@ use std::fs::File;
 use std::io::{BufWriter, Write};
 use std::path::{Path, PathBuf};
 
+pub use exr_limits::{MAX_EXR_PIXELS, check_exr_size};
 pub use gltf_io::{read_glb_bytes, read_gltf, write_glb};
 pub use obj::{read_obj, write_obj};
 pub use ply::{read_ply, write_ply};
@@ -46,10 +48,53 @@ fn extension(path: &Path) -> String {
     path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase()
 }
 
+/// Reads a whole input file after checking that it is a regular file: a folder, a FIFO or
+/// a device such as `/dev/zero` (which never ends) is refused by name instead of read.
+pub(crate) fn read_input(path: &Path) -> Result<Vec<u8>> {
+    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
+    if !meta.is_file() {
+        let what = if meta.is_dir() { "a folder" } else { "not a regular file (a device or pipe?)" };
+        return Err(Error::format(path, "file", format!("a regular file, but it is {what}")));
+    }
+    std::fs::read(path).map_err(|e| Error::io(path, e))
+}
+
 /// A temporary path beside `path` (same directory, so a rename is atomic).
 fn temp_path(path: &Path) -> PathBuf {
     let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
     path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
+}
+
+/// Writes several files as one: first checks that no destination is a folder, then writes
+/// every file to a temporary name beside it, and only when all are written renames them
+/// into place, in order (put the file that refers to the others last). On any error the
+/// temporaries are removed and no destination has been touched.
+pub fn write_atomic_all(files: &[(&Path, &[u8])]) -> Result<()> {
+    for (path, _) in files {
+        if path.is_dir() {
+            return Err(Error::invalid(format!("output {}", path.display()), "a file name, but it is a folder"));
+        }
+    }
+    let temps: Vec<PathBuf> = files.iter().map(|(path, _)| temp_path(path)).collect();
+    let written = files.iter().zip(&temps).try_for_each(|((path, bytes), tmp)| {
+        let mut file = File::create(tmp).map_err(|e| Error::io(path, e))?;
+        file.write_all(bytes).and_then(|()| file.flush()).map_err(|e| Error::io(path, e))
+    });
+    if let Err(e) = written {
+        for tmp in &temps {
+            let _ = std::fs::remove_file(tmp);
+        }
+        return Err(e);
+    }
+    for (i, ((path, _), tmp)) in files.iter().zip(&temps).enumerate() {
+        if let Err(e) = std::fs::rename(tmp, path) {
+            for tmp in &temps[i..] {
+                let _ = std::fs::remove_file(tmp);
+            }
+            return Err(Error::io(path, e));
+        }
+    }
+    Ok(())
 }
 
 /// Writes a file atomically: `write` fills a buffered temporary file beside `path`,

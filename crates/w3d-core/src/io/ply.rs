@@ -105,7 +105,7 @@ impl Body<'_> {
 /// properties are skipped.
 pub fn read_ply(path: impl AsRef<Path>) -> Result<Mesh> {
     let path = path.as_ref();
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let bytes = crate::io::read_input(path)?;
     let bad = |field: &str, expected: &str| Error::format(path, field, expected);
     let header_end = find_header_end(&bytes).ok_or_else(|| bad("header", "a PLY header ending in `end_header`"))?;
     let header = std::str::from_utf8(&bytes[..header_end]).map_err(|_| bad("header", "ASCII header text"))?;
@@ -156,6 +156,7 @@ pub fn read_ply(path: impl AsRef<Path>) -> Result<Mesh> {
     }
     let encoding = encoding.ok_or_else(|| bad("header", "a `format` line"))?;
     let body_bytes = &bytes[header_end..];
+    check_claimed_sizes(path, &elements, encoding, body_bytes.len())?;
     let mut body = match encoding {
         Encoding::Ascii => Body::Ascii {
             tokens: std::str::from_utf8(body_bytes).map_err(|_| bad("body", "ASCII numbers"))?.split_ascii_whitespace(),
@@ -254,6 +255,54 @@ pub fn read_ply(path: impl AsRef<Path>) -> Result<Mesh> {
         mesh = mesh.with_uvs(uvs).map_err(|e| e.in_file(path))?;
     }
     Ok(mesh)
+}
+
+/// Refuses element counts the body cannot hold, before reading any row (so a header that
+/// claims 10¹⁸ rows fails at once instead of looping or allocating): an element with rows
+/// needs properties, and the rows need at least `count × (smallest row)` bytes, the
+/// smallest row being the fixed-size values plus the list lengths in binary files, and one
+/// character and one separator per value in ascii files.
+fn check_claimed_sizes(path: &Path, elements: &[Element], encoding: Encoding, body_len: usize) -> Result<()> {
+    let mut needed: u128 = 0;
+    for e in elements {
+        if e.count > 0 && e.properties.is_empty() {
+            return Err(Error::format(
+                path,
+                format!("element {}", e.name),
+                format!("properties for its {} rows (a PLY element without properties can only have 0 rows)", e.count),
+            ));
+        }
+        let row: usize = e
+            .properties
+            .iter()
+            .map(|p| match (encoding, p.list) {
+                (Encoding::Ascii, _) => 2,
+                (_, Some(count)) => count.size(),
+                (_, None) => p.value.size(),
+            })
+            .sum();
+        let before = needed;
+        needed += e.count as u128 * row as u128;
+        // Ascii: the last value of the file needs no separator after it.
+        let available = body_len as u128 + u128::from(encoding == Encoding::Ascii);
+        if needed > available {
+            // Binary rows have a known smallest size: name the first row that cannot fit.
+            let field = match encoding {
+                Encoding::Ascii => format!("element {}", e.name),
+                _ => format!("element {} row {}", e.name, (available.saturating_sub(before)) / row.max(1) as u128),
+            };
+            return Err(Error::format(
+                path,
+                field,
+                format!(
+                    "at most as many rows as the file holds: {} rows need at least {needed} bytes with the \
+                     elements before them, the body has {body_len} (a wrong count, or a truncated file)",
+                    e.count
+                ),
+            ));
+        }
+    }
+    Ok(())
 }
 
 /// Byte offset just past the `end_header` line.

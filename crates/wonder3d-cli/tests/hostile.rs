@@ -1,0 +1,227 @@
+//! The hostile-user findings of issue #23 against the command line: every case ends quickly
+//! with a clear error (or does the right thing) and loses nothing.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+use std::time::{Duration, Instant};
+
+use wonder3d::{Mesh, ViewSet, load_mesh, save_mesh};
+
+fn wonder3d(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_wonder3d")).args(args).output().unwrap()
+}
+
+/// Runs a command that must fail within `seconds`, returning its stderr.
+fn fails_within(seconds: u64, args: &[&str]) -> String {
+    let start = Instant::now();
+    let out = wonder3d(args);
+    assert!(start.elapsed() < Duration::from_secs(seconds), "{args:?} took {:?}", start.elapsed());
+    let err = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(!out.status.success(), "{args:?} succeeded: {err}");
+    // A clear error, not an abort on allocation (134) or a panic (101).
+    assert!(matches!(out.status.code(), Some(1 | 2)), "{args:?}: {:?} {err}", out.status);
+    err
+}
+
+fn asset(name: &str) -> String {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../assets").join(name).to_str().unwrap().to_string()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Oracle views of the torus at 32² in `dir`.
+fn render_torus(dir: &Path) {
+    let run = wonder3d(&["render", &asset("torus.obj"), "--size", "32", "--out", s(dir)]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+}
+
+#[test]
+fn info_on_a_ply_claiming_10e18_rows_fails_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("junk.ply");
+    let text = "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\n\
+                property float z\nelement junk 1000000000000000000\nend_header\n";
+    let mut bytes = text.as_bytes().to_vec();
+    bytes.extend([0u8; 36]);
+    std::fs::write(&p, bytes).unwrap();
+    let err = fails_within(5, &["info", s(&p)]);
+    assert!(err.contains("junk.ply") && err.contains("element junk"), "{err}");
+}
+
+#[test]
+fn reconstruct_refuses_absurd_cameras_at_once() {
+    let dir = tempfile::tempdir().unwrap();
+    let views = dir.path().join("views");
+    render_torus(&views);
+    let cameras = views.join("cameras.json");
+    let original: serde_json::Value = serde_json::from_slice(&std::fs::read(&cameras).unwrap()).unwrap();
+    for half_height in [100.0, 1e30] {
+        let mut json = original.clone();
+        for v in json["views"].as_array_mut().unwrap() {
+            v["camera"]["projection"]["half_height"] = half_height.into();
+        }
+        std::fs::write(&cameras, json.to_string()).unwrap();
+        let out = dir.path().join("x.glb");
+        let err = fails_within(10, &["reconstruct", s(&views), "--out", s(&out), "--quiet"]);
+        assert!(err.contains("cameras.json") && err.contains("half_height"), "{err}");
+        assert!(!out.exists());
+    }
+}
+
+#[test]
+fn sizes_that_cannot_fit_in_memory_are_refused_by_the_parser() {
+    let dir = tempfile::tempdir().unwrap();
+    let torus = asset("torus.obj");
+    let err = fails_within(5, &["eval", &torus, &torus, "--samples", "100000000000"]);
+    assert!(err.contains("--samples") && err.contains("1 to 10000000"), "{err}");
+    let out = dir.path().join("v");
+    let err = fails_within(5, &["render", &torus, "--size", "16384", "--out", s(&out)]);
+    assert!(err.contains("--size") && err.contains("1 to 4096"), "{err}");
+    assert!(!out.exists());
+    let err = fails_within(5, &["texture", &torus, s(dir.path()), "--size", "0", "--out", "t.glb"]);
+    assert!(err.contains("from 8 to 8192 texels") && !err.contains("dilation"), "{err}");
+    // Options that only the bake would refuse are checked before the demo's reconstruction.
+    let err = fails_within(3, &["demo", "--out", s(&dir.path().join("demo")), "--texture-size", "8", "--quiet"]);
+    assert!(err.contains("padding"), "{err}");
+}
+
+#[test]
+fn negative_and_non_finite_numbers_get_a_range_error() {
+    let torus = asset("torus.obj");
+    let err = fails_within(5, &["eval", &torus, &torus, "--seed", "-1"]);
+    assert!(err.contains("from 0 to 18446744073709551615") && !err.contains("tip"), "{err}");
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("views");
+    // Parsed (and refused) before any work, in builds with and without the model.
+    let err = fails_within(5, &["generate", &torus, "--weights", "w", "--out", s(&out), "--guidance", "NaN"]);
+    assert!(err.contains("guidance scale from 0 to 100"), "{err}");
+    let err = fails_within(5, &["generate", &torus, "--weights", "w", "--out", s(&out), "--eta", "-0.5"]);
+    assert!(err.contains("an eta from 0 to 1"), "{err}");
+    assert!(!out.exists());
+    let err = fails_within(5, &["texture", &torus, s(dir.path()), "--exponent", "inf", "--out", "t.glb"]);
+    assert!(err.contains("exponent"), "{err}");
+}
+
+#[test]
+fn outputs_are_checked_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let views = dir.path().join("views");
+    render_torus(&views);
+    let v = s(&views);
+    let err = fails_within(3, &["reconstruct", v, "--out", "/nonexistent/x.glb"]);
+    assert!(err.contains("/nonexistent"), "{err}");
+    let err = fails_within(3, &["reconstruct", v, "--out", s(&dir.path().join("x.stl"))]);
+    assert!(err.contains(".glb, .obj or .ply"), "{err}");
+    let mesh = dir.path().join("x.glb");
+    let report = dir.path().join("missing/report.json");
+    let err = fails_within(3, &["reconstruct", v, "--out", s(&mesh), "--report", s(&report)]);
+    assert!(err.contains("missing"), "{err}");
+    let err = fails_within(3, &["reconstruct", v, "--out", s(&mesh), "--report", s(&mesh)]);
+    assert!(err.contains("written there too"), "{err}");
+    let obj = dir.path().join("y.obj");
+    let err = fails_within(3, &["reconstruct", v, "--out", s(&obj), "--report", s(&dir.path().join("y.png"))]);
+    assert!(err.contains("written there too"), "{err}");
+    assert!(!mesh.exists() && !obj.exists());
+    // render: into a file, or a folder of other files, is refused before rendering.
+    let file = dir.path().join("file.txt");
+    std::fs::write(&file, "mine").unwrap();
+    let err = fails_within(3, &["render", &asset("torus.obj"), "--out", s(&file)]);
+    assert!(err.contains("it is a file"), "{err}");
+    let err = fails_within(3, &["render", &asset("torus.obj"), "--out", s(dir.path())]);
+    assert!(err.contains("view-set files"), "{err}");
+    assert_eq!(std::fs::read_to_string(&file).unwrap(), "mine");
+}
+
+#[test]
+fn texture_onto_a_folder_named_like_the_obj_keeps_the_side_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let views = dir.path().join("views");
+    render_torus(&views);
+    let f = dir.path().join("f");
+    std::fs::create_dir_all(f.join("tex.obj")).unwrap();
+    std::fs::write(f.join("tex.png"), "old png").unwrap();
+    std::fs::write(f.join("tex.mtl"), "old mtl").unwrap();
+    let args = ["texture", &asset("torus.obj"), s(&views), "--normalize", "--size", "64", "--out"];
+    let err = fails_within(5, &[&args[..], &[s(&f.join("tex.obj"))]].concat());
+    assert!(err.contains("tex.obj") && err.contains("folder"), "{err}");
+    assert_eq!(std::fs::read_to_string(f.join("tex.png")).unwrap(), "old png");
+    assert_eq!(std::fs::read_to_string(f.join("tex.mtl")).unwrap(), "old mtl");
+    // A good name writes the three files together.
+    let run = wonder3d(&[&args[..], &[s(&f.join("good.obj")), "--quiet"]].concat());
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let textured = load_mesh(f.join("good.obj")).unwrap();
+    assert_eq!(textured.texture().unwrap().width(), 64);
+}
+
+#[test]
+fn render_replaces_a_view_folder_whole_and_reconstruct_refuses_a_mixed_one() {
+    let dir = tempfile::tempdir().unwrap();
+    let views = dir.path().join("views");
+    render_torus(&views);
+    // Rendering another object over it replaces every file (no torus file is left).
+    let run = wonder3d(&["render", &asset("spot.obj"), "--size", "32", "--rig", "wonder3d-persp", "--out", s(&views)]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let spot = ViewSet::load(&views).unwrap();
+    assert_eq!(spot.rig().name, "wonder3d_persp");
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1, "no staging folder is left");
+    // A folder mixing two renders (what a failed write into an old folder left) is refused.
+    let torus = dir.path().join("torus");
+    render_torus(&torus);
+    std::fs::copy(torus.join("normal_back.png"), views.join("normal_back.png")).unwrap();
+    std::fs::copy(torus.join("normal_back.exr"), views.join("normal_back.exr")).unwrap();
+    let out = dir.path().join("x.glb");
+    let err = fails_within(5, &["reconstruct", s(&views), "--out", s(&out), "--quiet"]);
+    assert!(err.contains("normal_back") && err.contains("different renders"), "{err}");
+    assert!(!out.exists());
+}
+
+#[test]
+fn inward_wound_meshes_are_rendered_outward() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut inward: Mesh = load_mesh(asset("torus.obj")).unwrap();
+    inward.flip_winding();
+    assert!(inward.signed_volume() < 0.0);
+    let inward_path = dir.path().join("inward.ply");
+    save_mesh(&inward_path, &inward).unwrap();
+    let (a, b) = (dir.path().join("a"), dir.path().join("b"));
+    render_torus(&a);
+    let run = wonder3d(&["render", s(&inward_path), "--size", "32", "--out", s(&b)]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let note = String::from_utf8_lossy(&run.stderr);
+    assert!(note.contains("wound inward") && note.contains("inward.ply"), "{note}");
+    let (a, b) = (ViewSet::load(&a).unwrap(), ViewSet::load(&b).unwrap());
+    for (va, vb) in a.views().iter().zip(b.views()) {
+        let worst = va.normal.data().iter().zip(vb.normal.data()).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max);
+        assert!(worst < 1e-3, "{}: normals differ by {worst}", va.name);
+    }
+    // info reports the orientation as stored; eval scores the inward mesh like the outward one.
+    let torus = asset("torus.obj");
+    let run = wonder3d(&["eval", s(&inward_path), &torus, "--json", "--normalize-pred", "--samples", "5000"]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert!(json["iou_64"].as_f64().unwrap() > 0.99, "{json}");
+}
+
+#[test]
+fn degenerate_triangles_are_reported_not_called_watertight() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("point.obj");
+    std::fs::write(&p, "v 0.5 0.5 0.5\nv 0.5 0.5 0.5\nv 0.5 0.5 0.5\nf 1 2 3\n").unwrap();
+    let run = wonder3d(&["info", s(&p), "--json"]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(json["degenerate_triangles"], 1, "{json}");
+    assert_eq!(json["watertight"], false, "{json}");
+    assert!(json["genus"].is_null(), "{json}");
+    let run = wonder3d(&["info", s(&p)]);
+    let text = String::from_utf8_lossy(&run.stdout);
+    assert!(text.contains("degenerate    1") && text.contains("watertight    no"), "{text}");
+    // Its views are empty; reconstruction names the first empty view instead of "mask".
+    let views = dir.path().join("views");
+    let run = wonder3d(&["render", s(&p), "--size", "16", "--out", s(&views)]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let err = fails_within(5, &["reconstruct", s(&views), "--out", s(&dir.path().join("x.glb")), "--quiet"]);
+    assert!(err.contains("views[0].mask (front)") && err.contains("empty mask"), "{err}");
+}
