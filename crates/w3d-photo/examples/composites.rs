@@ -9,7 +9,8 @@
 //! cargo run --release -p w3d-photo --example composites -- ../shared/data/images target/composites
 //! ```
 //!
-//! Writes `OUT_DIR/composites.json` (every case), `OUT_DIR/composites.md` (the summary
+//! A third argument limits the run to some backdrops (`white,shadow`). Writes
+//! `OUT_DIR/composites.json` (every case), `OUT_DIR/composites.md` (the summary
 //! tables of `docs/input.md`) and, per RGB photo, `OUT_DIR/rgb/NAME_sheet.png` (photo | mask |
 //! prepared). The composites themselves are not written: the images may not be
 //! redistributed.
@@ -75,9 +76,13 @@ fn mean(v: &[f32]) -> f32 {
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
-    let [data, out] = &args[..] else {
-        eprintln!("usage: composites DATA_DIR OUT_DIR");
-        std::process::exit(2);
+    let (data, out, only) = match &args[..] {
+        [data, out] => (data, out, None),
+        [data, out, only] => (data, out, Some(only.split(',').map(str::to_string).collect::<Vec<_>>())),
+        _ => {
+            eprintln!("usage: composites DATA_DIR OUT_DIR [BACKDROP,...]");
+            std::process::exit(2);
+        }
     };
     let (data, out) = (PathBuf::from(data), PathBuf::from(out));
     std::fs::create_dir_all(out.join("rgb"))?;
@@ -95,6 +100,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             continue;
         }
         for backdrop in Backdrop::ALL {
+            if only.as_ref().is_some_and(|o| !o.iter().any(|b| b == backdrop.name())) {
+                continue;
+            }
             for &(scale_name, fill) in &scales {
                 let c = composite(&object, backdrop, size, fill, k as u64 * 31 + 7)?;
                 let t = Instant::now();

@@ -2,6 +2,8 @@
 //! written for this crate: a locally affine map from the guide's colour to the filtered
 //! value, so a soft mask takes the photo's edges. Box means by running sums, O(pixels).
 
+use rayon::prelude::*;
+
 use crate::gmm::invert_sym3;
 
 /// Mean over the clipped `(2r+1)²` window of every pixel (separable running sums).
@@ -41,21 +43,33 @@ pub(crate) fn box_mean(src: &[f32], w: usize, h: usize, r: usize) -> Vec<f32> {
 /// regularisation `eps` (larger = smoother, less edge-following).
 pub(crate) fn guided_filter(guide: &[[f32; 3]], p: &[f32], w: usize, h: usize, r: usize, eps: f32) -> Vec<f32> {
     let n = w * h;
-    let chan = |f: &dyn Fn(&[f32; 3], f32) -> f32| -> Vec<f32> {
-        let v: Vec<f32> = guide.iter().zip(p).map(|(g, &pv)| f(g, pv)).collect();
-        box_mean(&v, w, h, r)
-    };
-    let mean_i = [chan(&|g, _| g[0]), chan(&|g, _| g[1]), chan(&|g, _| g[2])];
-    let mean_p = box_mean(p, w, h, r);
-    let mean_ip = [chan(&|g, pv| g[0] * pv), chan(&|g, pv| g[1] * pv), chan(&|g, pv| g[2] * pv)];
-    let ii = [
-        chan(&|g, _| g[0] * g[0]),
-        chan(&|g, _| g[0] * g[1]),
-        chan(&|g, _| g[0] * g[2]),
-        chan(&|g, _| g[1] * g[1]),
-        chan(&|g, _| g[1] * g[2]),
-        chan(&|g, _| g[2] * g[2]),
+    // The 13 window means the filter needs: I (3), p, I·p (3), I·Iᵀ (6), in parallel.
+    let products: [fn(&[f32; 3], f32) -> f32; 13] = [
+        |g, _| g[0],
+        |g, _| g[1],
+        |g, _| g[2],
+        |_, pv| pv,
+        |g, pv| g[0] * pv,
+        |g, pv| g[1] * pv,
+        |g, pv| g[2] * pv,
+        |g, _| g[0] * g[0],
+        |g, _| g[0] * g[1],
+        |g, _| g[0] * g[2],
+        |g, _| g[1] * g[1],
+        |g, _| g[1] * g[2],
+        |g, _| g[2] * g[2],
     ];
+    let means: Vec<Vec<f32>> = products
+        .par_iter()
+        .map(|f| {
+            let v: Vec<f32> = guide.iter().zip(p).map(|(g, &pv)| f(g, pv)).collect();
+            box_mean(&v, w, h, r)
+        })
+        .collect();
+    let mean_i = [&means[0], &means[1], &means[2]];
+    let mean_p = &means[3];
+    let mean_ip = [&means[4], &means[5], &means[6]];
+    let ii = [&means[7], &means[8], &means[9], &means[10], &means[11], &means[12]];
     let mut a = [vec![0.0f32; n], vec![0.0f32; n], vec![0.0f32; n]];
     let mut b = vec![0.0f32; n];
     for i in 0..n {
@@ -86,8 +100,9 @@ pub(crate) fn guided_filter(guide: &[[f32; 3]], p: &[f32], w: usize, h: usize, r
         }
         b[i] = mean_p[i] - coef[0] * mu[0] - coef[1] * mu[1] - coef[2] * mu[2];
     }
-    let mean_a = [box_mean(&a[0], w, h, r), box_mean(&a[1], w, h, r), box_mean(&a[2], w, h, r)];
-    let mean_b = box_mean(&b, w, h, r);
+    let mut smoothed: Vec<Vec<f32>> = [&a[0], &a[1], &a[2], &b].par_iter().map(|v| box_mean(v, w, h, r)).collect();
+    let mean_b = smoothed.pop().unwrap_or_default();
+    let mean_a = [&smoothed[0], &smoothed[1], &smoothed[2]];
     (0..n)
         .map(|i| {
             let g = guide[i];

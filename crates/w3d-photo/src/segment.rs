@@ -3,6 +3,7 @@
 //! mixtures, clean-up of the mask, a soft boundary by guided filtering, and a confidence
 //! score with named reasons.
 
+use rayon::prelude::*;
 use w3d_core::{Error, Image, Result};
 
 use crate::gmm::Gmm;
@@ -493,11 +494,11 @@ fn surface_costs(work: &[[f32; 3]], w: usize, h: usize, surface: &Surface, noise
     let sigma = noise.max(2.5 / 255.0);
     let sigma_shadow = (1.5 * sigma).max(0.012);
     // Shadows are a priori rarer than plain background, and deep ones rarer still.
-    let shadow_prior = (1.0f32 / 0.25).ln();
+    let shadow_prior = (1.0f32 / 0.01).ln();
     let mut out = vec![0.0f32; w * h];
-    for y in 0..h {
+    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         let v = (y as f32 + 0.5) / h as f32 * 2.0 - 1.0;
-        for x in 0..w {
+        for (x, o) in row.iter_mut().enumerate() {
             let u = (x as f32 + 0.5) / w as f32 * 2.0 - 1.0;
             let c = work[y * w + x];
             let b = surface.at(u, v);
@@ -515,9 +516,9 @@ fn surface_costs(work: &[[f32; 3]], w: usize, h: usize, surface: &Surface, noise
                     }
                 }
             }
-            out[y * w + x] = cost;
+            *o = cost;
         }
-    }
+    });
     out
 }
 
@@ -601,18 +602,17 @@ fn segment_work(work: &[[f32; 3]], w: usize, h: usize, options: &SegmentOptions)
         }
         let fg = Gmm::fit(&fg_samples, options.components, colour_floor);
         let bg = Gmm::fit(&bg_samples, options.components, colour_floor);
-        for i in 0..n {
-            let c = work[i];
+        unary.par_iter_mut().zip(work.par_iter().zip(&bg_surface)).for_each(|(u, (&c, &surface_cost))| {
             let fg_cost = match &fg {
                 Some(g) => softmin(g.cost(c) + (1.0f32 / 0.9).ln(), UNIFORM_COST + (1.0f32 / 0.1).ln()),
                 None => UNIFORM_COST,
             };
             let bg_cost = match &bg {
-                Some(g) => softmin(bg_surface[i] + 2.0f32.ln(), g.cost(c) + 2.0f32.ln()),
-                None => bg_surface[i],
+                Some(g) => softmin(surface_cost + 2.0f32.ln(), g.cost(c) + 2.0f32.ln()),
+                None => surface_cost,
             };
-            unary[i] = (bg_cost - fg_cost).clamp(-MAX_UNARY, MAX_UNARY);
-        }
+            *u = (bg_cost - fg_cost).clamp(-MAX_UNARY, MAX_UNARY);
+        });
         label = cut(&unary, work, w, h, &offsets, beta, options.smoothness);
         if round == 0 {
             // Refit the background surface to everything the cut called background: the

@@ -24,7 +24,7 @@ fn composites_of_real_objects_are_segmented() {
     let Some(dir) = shared_images() else { return };
     let mut worst = (f32::INFINITY, String::new());
     let mut ious = Vec::new();
-    for (k, name) in ["box.png", "teapot.png", "kettle.png"].iter().enumerate() {
+    for (k, name) in ["box.png", "teapot.png", "milk.png", "cat.png"].iter().enumerate() {
         let object = Image::read(dir.join(name)).unwrap();
         for backdrop in [Backdrop::White, Backdrop::Gradient, Backdrop::ShadowOnWhite] {
             let c = composite(&object, backdrop, 256, 0.7, k as u64).unwrap();
@@ -45,7 +45,7 @@ fn composites_of_real_objects_are_segmented() {
     }
     let mean = ious.iter().sum::<f32>() / ious.len() as f32;
     assert!(mean >= 0.97, "mean IoU {mean}");
-    assert!(worst.0 >= 0.93, "worst: {} with IoU {}", worst.1, worst.0);
+    assert!(worst.0 >= 0.95, "worst: {} with IoU {}", worst.1, worst.0);
 }
 
 #[test]
