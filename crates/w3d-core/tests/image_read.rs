@@ -274,10 +274,12 @@ fn cmyk_jpeg_is_converted_or_refused_clearly() {
             // Converted to RGB by the decoder: every pixel the same colour.
             assert_eq!((img.width(), img.height(), img.channels()), (8, 8, 3));
             let first = img.pixel(0, 0).to_vec();
+            eprintln!("the CMYK JPEG decoded to RGB {first:?}");
             assert!(img.data().chunks(3).all(|p| p == first.as_slice()), "uniform CMYK gave {:?}", img.data());
         }
         Err(e) => {
             let msg = e.to_string();
+            eprintln!("the CMYK JPEG was refused: {msg}");
             assert!(msg.contains(&p.display().to_string()) && msg.contains("JPEG"), "{msg}");
         }
     }

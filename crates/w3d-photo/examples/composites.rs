@@ -49,7 +49,7 @@ fn sheet(images: &[&Image], cell: u32) -> w3d_core::Result<Image> {
                 1 => [p[0]; 3],
                 3 => [p[0], p[1], p[2]],
                 _ => {
-                    let check = if ((x / 16) + (y / 16)) % 2 == 0 { 0.92 } else { 0.78 };
+                    let check = if ((x / 16) + (y / 16)).is_multiple_of(2) { 0.92 } else { 0.78 };
                     [0, 1, 2].map(|k| p[k] * p[3] + check * (1.0 - p[3]))
                 }
             };
@@ -69,6 +69,11 @@ fn sheet(images: &[&Image], cell: u32) -> w3d_core::Result<Image> {
     }
     Ok(out)
 }
+
+/// A backdrop and a scale name.
+type Group = (Backdrop, &'static str);
+/// IoU, boundary F, refused, seconds of one case.
+type Score = (f32, f32, bool, f32);
 
 fn mean(v: &[f32]) -> f32 {
     if v.is_empty() { f32::NAN } else { v.iter().sum::<f32>() / v.len() as f32 }
@@ -91,8 +96,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let size = 512;
 
     let mut cases = Vec::new();
-    // (backdrop, scale) → (iou, bf, refused, seconds)
-    let mut groups: Vec<((Backdrop, &str), Vec<(f32, f32, bool, f32)>)> = Vec::new();
+    let mut groups: Vec<(Group, Vec<Score>)> = Vec::new();
     for (k, name) in listed(&data, "alpha matte")?.iter().enumerate() {
         let object = Image::read(data.join(name))?;
         if object.channels() != 4 {

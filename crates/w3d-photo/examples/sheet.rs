@@ -25,7 +25,7 @@ fn display(img: &Image, cell: u32) -> image::Rgb32FImage {
             1 => [p[0]; 3],
             3 => [p[0], p[1], p[2]],
             _ => {
-                let bg = if ((x / check) + (y / check)) % 2 == 0 { 0.93 } else { 0.8 };
+                let bg = if ((x / check) + (y / check)).is_multiple_of(2) { 0.93 } else { 0.8 };
                 [0, 1, 2].map(|k| p[k] * p[3] + bg * (1.0 - p[3]))
             }
         };

@@ -219,10 +219,7 @@ pub fn boundary_f_score(pred: &Image, truth: &Image, threshold: f32, tolerance: 
     let near = |from: &[bool], to: &[bool]| -> (usize, usize) {
         let mut hit = 0;
         let mut total = 0;
-        for i in 0..w * h {
-            if !from[i] {
-                continue;
-            }
+        for (i, _) in from.iter().enumerate().filter(|&(_, &on)| on) {
             total += 1;
             let (x, y) = ((i % w) as isize, (i / w) as isize);
             let found = (-r..=r).any(|dy| {

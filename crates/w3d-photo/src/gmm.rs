@@ -159,7 +159,8 @@ pub(crate) fn invert_sym3(m: [f64; 6]) -> Option<([f64; 6], f64)> {
     let c01 = c * e - b * f;
     let c02 = b * e - c * d;
     let det = a * c00 + b * c01 + c * c02;
-    if !(det > 1e-30) {
+    // Also refuses a NaN determinant.
+    if det.is_nan() || det <= 1e-30 {
         return None;
     }
     let c11 = a * f - c * c;
@@ -191,9 +192,9 @@ mod tests {
         let (inv, det) = invert_sym3(m).unwrap();
         let full = |v: [f64; 6]| [[v[0], v[1], v[2]], [v[1], v[3], v[4]], [v[2], v[4], v[5]]];
         let (a, b) = (full(m), full(inv));
-        for i in 0..3 {
+        for (i, row) in a.iter().enumerate() {
             for j in 0..3 {
-                let p: f64 = (0..3).map(|k| a[i][k] * b[k][j]).sum();
+                let p: f64 = row.iter().zip(&b).map(|(x, col)| x * col[j]).sum();
                 assert!((p - if i == j { 1.0 } else { 0.0 }).abs() < 1e-12);
             }
         }

@@ -454,13 +454,14 @@ fn solve6(mut a: [[f64; 6]; 6], mut b: [[f64; 3]; 6]) -> Option<[[f64; 3]; 6]> {
         }
         a.swap(col, pivot);
         b.swap(col, pivot);
-        for r in col + 1..6 {
-            let f = a[r][col] / a[col][col];
-            for k in col..6 {
-                a[r][k] -= f * a[col][k];
+        let (pivot_row, pivot_b) = (a[col], b[col]);
+        for (row, rhs) in a.iter_mut().zip(b.iter_mut()).skip(col + 1) {
+            let f = row[col] / pivot_row[col];
+            for (v, p) in row.iter_mut().zip(&pivot_row).skip(col) {
+                *v -= f * p;
             }
-            for ch in 0..3 {
-                b[r][ch] -= f * b[col][ch];
+            for (v, p) in rhs.iter_mut().zip(&pivot_b) {
+                *v -= f * p;
             }
         }
     }
@@ -882,8 +883,8 @@ mod tests {
         let (w, h) = (7, 5);
         let mask: Vec<bool> = (0..w * h).map(|i| i % w >= 3).collect();
         let b = band(&mask, w, h, 1);
-        for i in 0..w * h {
-            assert_eq!(b[i], (2..=3).contains(&(i % w)), "pixel {i}");
+        for (i, &on) in b.iter().enumerate() {
+            assert_eq!(on, (2..=3).contains(&(i % w)), "pixel {i}");
         }
     }
 }

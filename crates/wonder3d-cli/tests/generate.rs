@@ -1,7 +1,7 @@
-#![cfg(feature = "diffusion")]
 //! `wonder3d generate` on the tiny Wonder3D checkpoint of w3d-diffusion's fixtures writes a
 //! view-set folder that `wonder3d reconstruct` reads; `wonder3d run` chains the three stages;
 //! bad input gets clear errors.
+#![cfg(feature = "diffusion")]
 
 use std::path::PathBuf;
 use std::process::Command;
