@@ -70,40 +70,45 @@ pub(crate) fn guided_filter(guide: &[[f32; 3]], p: &[f32], w: usize, h: usize, r
     let mean_p = &means[3];
     let mean_ip = [&means[4], &means[5], &means[6]];
     let ii = [&means[7], &means[8], &means[9], &means[10], &means[11], &means[12]];
-    let mut a = [vec![0.0f32; n], vec![0.0f32; n], vec![0.0f32; n]];
-    let mut b = vec![0.0f32; n];
-    for i in 0..n {
-        let mu = [mean_i[0][i], mean_i[1][i], mean_i[2][i]];
-        let cov_ip =
-            [mean_ip[0][i] - mu[0] * mean_p[i], mean_ip[1][i] - mu[1] * mean_p[i], mean_ip[2][i] - mu[2] * mean_p[i]];
-        let sigma = [
-            f64::from(ii[0][i] - mu[0] * mu[0] + eps),
-            f64::from(ii[1][i] - mu[0] * mu[1]),
-            f64::from(ii[2][i] - mu[0] * mu[2]),
-            f64::from(ii[3][i] - mu[1] * mu[1] + eps),
-            f64::from(ii[4][i] - mu[1] * mu[2]),
-            f64::from(ii[5][i] - mu[2] * mu[2] + eps),
-        ];
-        let coef = match invert_sym3(sigma) {
-            Some((inv, _)) => {
-                let c = cov_ip.map(f64::from);
-                [
-                    (inv[0] * c[0] + inv[1] * c[1] + inv[2] * c[2]) as f32,
-                    (inv[1] * c[0] + inv[3] * c[1] + inv[4] * c[2]) as f32,
-                    (inv[2] * c[0] + inv[4] * c[1] + inv[5] * c[2]) as f32,
-                ]
-            }
-            None => [0.0; 3],
-        };
-        for k in 0..3 {
-            a[k][i] = coef[k];
-        }
-        b[i] = mean_p[i] - coef[0] * mu[0] - coef[1] * mu[1] - coef[2] * mu[2];
-    }
+    // Per pixel: the affine coefficients (a: 3, b: 1) of the window's least-squares fit.
+    let coefs: Vec<[f32; 4]> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let mu = [mean_i[0][i], mean_i[1][i], mean_i[2][i]];
+            let cov_ip = [
+                mean_ip[0][i] - mu[0] * mean_p[i],
+                mean_ip[1][i] - mu[1] * mean_p[i],
+                mean_ip[2][i] - mu[2] * mean_p[i],
+            ];
+            let sigma = [
+                f64::from(ii[0][i] - mu[0] * mu[0] + eps),
+                f64::from(ii[1][i] - mu[0] * mu[1]),
+                f64::from(ii[2][i] - mu[0] * mu[2]),
+                f64::from(ii[3][i] - mu[1] * mu[1] + eps),
+                f64::from(ii[4][i] - mu[1] * mu[2]),
+                f64::from(ii[5][i] - mu[2] * mu[2] + eps),
+            ];
+            let coef = match invert_sym3(sigma) {
+                Some((inv, _)) => {
+                    let c = cov_ip.map(f64::from);
+                    [
+                        (inv[0] * c[0] + inv[1] * c[1] + inv[2] * c[2]) as f32,
+                        (inv[1] * c[0] + inv[3] * c[1] + inv[4] * c[2]) as f32,
+                        (inv[2] * c[0] + inv[4] * c[1] + inv[5] * c[2]) as f32,
+                    ]
+                }
+                None => [0.0; 3],
+            };
+            [coef[0], coef[1], coef[2], mean_p[i] - coef[0] * mu[0] - coef[1] * mu[1] - coef[2] * mu[2]]
+        })
+        .collect();
+    let a: [Vec<f32>; 3] = [0, 1, 2].map(|k| coefs.iter().map(|c| c[k]).collect());
+    let b: Vec<f32> = coefs.iter().map(|c| c[3]).collect();
     let mut smoothed: Vec<Vec<f32>> = [&a[0], &a[1], &a[2], &b].par_iter().map(|v| box_mean(v, w, h, r)).collect();
     let mean_b = smoothed.pop().unwrap_or_default();
     let mean_a = [&smoothed[0], &smoothed[1], &smoothed[2]];
     (0..n)
+        .into_par_iter()
         .map(|i| {
             let g = guide[i];
             mean_a[0][i] * g[0] + mean_a[1][i] * g[1] + mean_a[2][i] * g[2] + mean_b[i]
