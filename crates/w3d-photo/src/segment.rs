@@ -15,7 +15,7 @@ use crate::maxflow::Graph;
 #[non_exhaustive]
 pub struct SegmentOptions {
     /// Longest side of the image the segmentation runs on (the photo is area-averaged down
-    /// to it; the soft boundary is then computed at full resolution). Default 400.
+    /// to it; the soft boundary is then computed at full resolution). Default 320.
     pub work_size: u32,
     /// Graph-cut rounds, each refitting the colour models to the last cut (GrabCut).
     /// Default 2 (a third round changes the composite scores of `docs/input.md` by < 0.002).
@@ -39,7 +39,7 @@ pub struct SegmentOptions {
 impl Default for SegmentOptions {
     fn default() -> Self {
         SegmentOptions {
-            work_size: 400,
+            work_size: 320,
             iterations: 2,
             smoothness: 50.0,
             shadows: true,
