@@ -239,6 +239,15 @@ mod tests {
     }
 
     #[test]
+    fn one_pixel_photo_is_refused_not_a_panic() {
+        for (w, h, c) in [(1, 1, 3), (1, 1, 1), (2, 1, 4), (1, 3, 2)] {
+            let img = Image::filled(w, h, c, 0.5).unwrap();
+            let err = prepare(&img, &PrepareOptions::default()).unwrap_err().to_string();
+            assert!(err.contains("RGBA") && err.contains("no object"), "{w}×{h}×{c}: {err}");
+        }
+    }
+
+    #[test]
     fn fully_transparent_and_cluttered_inputs_are_refused_with_reasons() {
         let clear = Image::filled(16, 16, 4, 0.0).unwrap();
         let err = prepare(&clear, &PrepareOptions::default()).unwrap_err().to_string();
