@@ -116,9 +116,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 let bf = boundary_f_score(&seg.alpha, &c.alpha, 0.5, 2)?;
                 let refused = seg.confidence.score < PrepareOptions::default().min_confidence;
                 eprintln!(
-                    "{name:>36} {:>8} {scale_name:>5}: IoU {iou:.4}  BF {bf:.3}  confidence {:.2}{}",
+                    "{name:>36} {:>8} {scale_name:>5}: IoU {iou:.4}  BF {bf:.3}  confidence {:.2}  shadow {:.2}{}",
                     backdrop.name(),
                     seg.confidence.score,
+                    seg.confidence.measures.shadow_fraction,
                     if refused { format!("  REFUSED: {}", seg.confidence.summary()) } else { String::new() }
                 );
                 cases.push(serde_json::json!({
@@ -126,6 +127,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     "iou": iou, "boundary_f": bf, "confidence": seg.confidence.score,
                     "reasons": seg.confidence.issues.iter().map(|i| i.reason.name()).collect::<Vec<_>>(),
                     "refused": refused, "seconds": seconds,
+                    "shadow_fraction": seg.confidence.measures.shadow_fraction,
                 }));
                 let key = (backdrop, scale_name);
                 match groups.iter_mut().find(|(k, _)| *k == key) {
@@ -183,7 +185,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             Ok(_) => "prepared".to_string(),
             Err(e) => format!("refused ({e})"),
         };
-        eprintln!("{name}: {result}; confidence {:.2}: {}", seg.confidence.score, seg.confidence.summary());
+        eprintln!(
+            "{name}: {result}; confidence {:.2}: {}; shadow {:.2}",
+            seg.confidence.score,
+            seg.confidence.summary(),
+            m.shadow_fraction
+        );
         let masked = photo_with_alpha(&photo, &seg.alpha)?;
         let framed = prepare(&photo, &PrepareOptions::default().with_min_confidence(0.0))?;
         sheet(&[&photo, &seg.alpha, &masked, &framed.rgba], 256)?
@@ -201,7 +208,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         photos.push(serde_json::json!({
             "photo": name, "prepared": prepared.is_ok(), "confidence": seg.confidence.score,
             "summary": seg.confidence.summary(), "object_fraction": m.object_fraction,
-            "border_noise": m.border_noise, "border_contact": m.border_contact,
+            "border_noise": m.border_noise, "border_contact": m.border_contact, "shadow_fraction": m.shadow_fraction,
             "ambiguous_fraction": m.ambiguous_fraction, "main_share": m.main_share, "seconds": seconds,
         }));
     }

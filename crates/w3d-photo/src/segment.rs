@@ -199,6 +199,9 @@ pub struct Measures {
     pub ambiguous_fraction: f32,
     /// The largest piece's share of the object, before small pieces are dropped.
     pub main_share: f32,
+    /// Background area that only the shadow model explains (darker, same chromaticity as
+    /// the backdrop), as a fraction of the object's area.
+    pub shadow_fraction: f32,
 }
 
 /// How much to trust an automatic segmentation: a score in `[0, 1]` (1 = no doubt) and the
@@ -670,6 +673,11 @@ fn segment_work(work: &[[f32; 3]], w: usize, h: usize, options: &SegmentOptions)
     measures.border_contact = ring.iter().filter(|&&i| mask[i]).count() as f32 / ring.len().max(1) as f32;
     let ambiguous = (0..n).filter(|&i| mask[i] && unary[i] < -3.0).count();
     measures.ambiguous_fraction = if area > 0 { ambiguous as f32 / area as f32 } else { 0.0 };
+    if options.shadows && area > 0 {
+        let plain = surface_costs(work, w, h, &surface, noise, false);
+        let shadowed = (0..n).filter(|&i| !mask[i] && plain[i] > bg_surface[i] + 3.0).count();
+        measures.shadow_fraction = shadowed as f32 / area as f32;
+    }
     (mask, measures)
 }
 

@@ -82,7 +82,7 @@ pub fn run(args: &PrepareArgs) -> Result<()> {
             "measures": {
                 "border_noise": m.border_noise, "object_fraction": m.object_fraction,
                 "border_contact": m.border_contact, "ambiguous_fraction": m.ambiguous_fraction,
-                "main_share": m.main_share,
+                "main_share": m.main_share, "shadow_fraction": m.shadow_fraction,
             },
             "crop": prepared.framing.map(|f| serde_json::json!({
                 "x": f.crop.x, "y": f.crop.y, "width": f.crop.width, "height": f.crop.height, "scale": f.scale,
