@@ -130,28 +130,108 @@ impl Image {
         let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
         let decoded = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png)
             .map_err(|e| Error::format(path, "PNG data", format!("a readable PNG image ({e})")))?;
-        let (w, h) = (decoded.width(), decoded.height());
-        let channels = decoded.color().channel_count() as u32;
-        let data: Vec<f32> = match decoded {
-            image::DynamicImage::ImageLuma8(b) => b.into_raw().into_iter().map(|v| v as f32 / 255.0).collect(),
-            image::DynamicImage::ImageLumaA8(b) => b.into_raw().into_iter().map(|v| v as f32 / 255.0).collect(),
-            image::DynamicImage::ImageRgb8(b) => b.into_raw().into_iter().map(|v| v as f32 / 255.0).collect(),
-            image::DynamicImage::ImageRgba8(b) => b.into_raw().into_iter().map(|v| v as f32 / 255.0).collect(),
-            image::DynamicImage::ImageLuma16(b) => b.into_raw().into_iter().map(|v| v as f32 / 65535.0).collect(),
-            image::DynamicImage::ImageLumaA16(b) => b.into_raw().into_iter().map(|v| v as f32 / 65535.0).collect(),
-            image::DynamicImage::ImageRgb16(b) => b.into_raw().into_iter().map(|v| v as f32 / 65535.0).collect(),
-            image::DynamicImage::ImageRgba16(b) => b.into_raw().into_iter().map(|v| v as f32 / 65535.0).collect(),
-            other => {
-                return Err(Error::format(
-                    path,
-                    "PNG colour type",
-                    format!("8- or 16-bit grey/RGB(A), got {:?}", other.color()),
+        from_dynamic(decoded).map_err(|e| e.in_file(path))
+    }
+
+    /// Reads a PNG, JPEG or WebP file (the format is recognised from the first bytes, not
+    /// the extension) with the default [`ReadLimits`]; see [`Image::decode`].
+    pub fn read(path: impl AsRef<Path>) -> Result<Self> {
+        Self::read_with_limits(path, &ReadLimits::default())
+    }
+
+    /// Reads a PNG, JPEG or WebP file within `limits`; see [`Image::decode`]. Errors name
+    /// the file.
+    pub fn read_with_limits(path: impl AsRef<Path>, limits: &ReadLimits) -> Result<Self> {
+        let path = path.as_ref();
+        let len = std::fs::metadata(path).map_err(|e| Error::io(path, e))?.len();
+        // No image format stores fewer than 1/8 byte per pixel on the way in: a file bigger
+        // than the whole decoded budget is refused before it is read.
+        let max_file = limits.max_pixels.saturating_mul(8).saturating_add(1 << 20);
+        if len > max_file {
+            return Err(Error::format(
+                path,
+                "file size",
+                format!("at most {max_file} bytes for an image within the decoding limits, got {len}"),
+            ));
+        }
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        Self::decode(&bytes, limits).map_err(|e| e.in_file(path))
+    }
+
+    /// Decodes a PNG, JPEG or WebP file held in memory into values in `[0, 1]`, as stored
+    /// (sRGB stays sRGB; no ICC conversion), with the file's channel count: 1 (grey), 2
+    /// (grey + alpha), 3 (RGB) or 4 (RGBA). Palette and low-bit-depth PNGs are expanded,
+    /// 16-bit PNGs keep their precision, CMYK JPEGs are converted to RGB by the decoder, and
+    /// the EXIF orientation (JPEG, WebP, PNG `eXIf`) is applied so the image comes out
+    /// upright.
+    ///
+    /// The size in the header is checked against `limits` before any pixel memory is
+    /// allocated; a truncated or corrupt file is an error, never a panic.
+    pub fn decode(bytes: &[u8], limits: &ReadLimits) -> Result<Self> {
+        use image::ImageDecoder as _;
+
+        let reader = image::ImageReader::new(std::io::Cursor::new(bytes))
+            .with_guessed_format()
+            .map_err(|e| Error::invalid("image data", format!("readable bytes ({e})")))?;
+        let format = match reader.format() {
+            Some(f @ (image::ImageFormat::Png | image::ImageFormat::Jpeg | image::ImageFormat::WebP)) => f,
+            Some(other) => {
+                return Err(Error::invalid(
+                    "image format",
+                    format!("a PNG, JPEG or WebP image, got {}", format_name(other)),
+                ));
+            }
+            None => {
+                return Err(Error::invalid(
+                    "image format",
+                    "a PNG, JPEG or WebP image (the first bytes match none of these formats)",
                 ));
             }
         };
-        Image::new(w, h, channels, data).map_err(|e| e.in_file(path))
+        let name = format_name(format);
+        if format == image::ImageFormat::Jpeg && !jpeg_has_end(bytes) {
+            // The JPEG decoder pads a cut-off scan with grey instead of failing.
+            return Err(Error::invalid(
+                "JPEG data",
+                "a complete JPEG file, but it has no end-of-image marker after its last scan (truncated?)",
+            ));
+        }
+        let mut reader = reader;
+        // The decoders' own budget (the PNG decoder checks it while reading the header);
+        // the dimensions are checked below, by us, so the error can name them.
+        let mut decoder_limits = image::Limits::no_limits();
+        decoder_limits.max_alloc = Some(limits.max_pixels.saturating_mul(8).saturating_add(1 << 20));
+        reader.limits(decoder_limits);
+        let mut decoder = reader.into_decoder().map_err(|e| decode_error(name, e, limits))?;
+        let (w, h) = decoder.dimensions();
+        if w == 0 || h == 0 {
+            return Err(Error::invalid("image size", format!("a non-empty {name} image, the header says {w}×{h}")));
+        }
+        if w > limits.max_side || h > limits.max_side {
+            return Err(Error::invalid(
+                "image size",
+                format!(
+                    "at most {m}×{m} pixels (the decoding limit, ReadLimits::max_side), the {name} header says {w}×{h}",
+                    m = limits.max_side
+                ),
+            ));
+        }
+        let pixels = u64::from(w) * u64::from(h);
+        if pixels > limits.max_pixels {
+            return Err(Error::invalid(
+                "image size",
+                format!(
+                    "at most {} pixels (the decoding limit, ReadLimits::max_pixels), the {name} header says {w}×{h} = {pixels}",
+                    limits.max_pixels
+                ),
+            ));
+        }
+        // A corrupt EXIF block is no reason to refuse the pixels: read them unrotated.
+        let orientation = decoder.orientation().unwrap_or(image::metadata::Orientation::NoTransforms);
+        let mut decoded = image::DynamicImage::from_decoder(decoder).map_err(|e| decode_error(name, e, limits))?;
+        decoded.apply_orientation(orientation);
+        from_dynamic(decoded)
     }
-
     /// Reads a PNG and requires `channels` channels (`field` names the image in errors).
     pub fn read_png_channels(path: impl AsRef<Path>, channels: u32) -> Result<Self> {
         let path = path.as_ref();
@@ -237,6 +317,108 @@ impl Image {
                 other => Error::format(path, "EXR encoding", other.to_string()),
             })
         })
+    }
+}
+
+/// Size limits of [`Image::read`] / [`Image::decode`], checked against the file's header
+/// before any pixel memory is allocated.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub struct ReadLimits {
+    /// Largest accepted width or height (default 16384).
+    pub max_side: u32,
+    /// Largest accepted pixel count (default 2²⁶ ≈ 67 million, about 1 GiB as RGBA `f32`).
+    pub max_pixels: u64,
+}
+
+impl Default for ReadLimits {
+    fn default() -> Self {
+        ReadLimits { max_side: 16384, max_pixels: 1 << 26 }
+    }
+}
+
+impl ReadLimits {
+    /// The same limits with another largest side.
+    pub fn with_max_side(mut self, max_side: u32) -> Self {
+        self.max_side = max_side;
+        self
+    }
+
+    /// The same limits with another largest pixel count.
+    pub fn with_max_pixels(mut self, max_pixels: u64) -> Self {
+        self.max_pixels = max_pixels;
+        self
+    }
+}
+
+/// A decoded image as `[0, 1]` floats with its own channel count (8- and 16-bit grey, grey +
+/// alpha, RGB, RGBA).
+#[cfg(feature = "io")]
+fn from_dynamic(decoded: image::DynamicImage) -> Result<Image> {
+    let (w, h) = (decoded.width(), decoded.height());
+    let channels = u32::from(decoded.color().channel_count());
+    let data: Vec<f32> = match decoded {
+        image::DynamicImage::ImageLuma8(b) => b.into_raw().into_iter().map(|v| v as f32 / 255.0).collect(),
+        image::DynamicImage::ImageLumaA8(b) => b.into_raw().into_iter().map(|v| v as f32 / 255.0).collect(),
+        image::DynamicImage::ImageRgb8(b) => b.into_raw().into_iter().map(|v| v as f32 / 255.0).collect(),
+        image::DynamicImage::ImageRgba8(b) => b.into_raw().into_iter().map(|v| v as f32 / 255.0).collect(),
+        image::DynamicImage::ImageLuma16(b) => b.into_raw().into_iter().map(|v| v as f32 / 65535.0).collect(),
+        image::DynamicImage::ImageLumaA16(b) => b.into_raw().into_iter().map(|v| v as f32 / 65535.0).collect(),
+        image::DynamicImage::ImageRgb16(b) => b.into_raw().into_iter().map(|v| v as f32 / 65535.0).collect(),
+        image::DynamicImage::ImageRgba16(b) => b.into_raw().into_iter().map(|v| v as f32 / 65535.0).collect(),
+        other => {
+            return Err(Error::invalid(
+                "image colour type",
+                format!("8- or 16-bit grey/RGB(A), got {:?}", other.color()),
+            ));
+        }
+    };
+    Image::new(w, h, channels, data)
+}
+
+/// Whether a JPEG file has its end-of-image marker (FF D9) after the start of its last scan
+/// (FF DA). Inside entropy-coded data every FF byte is followed by 00 or a restart marker, so
+/// an FF D9 there is the real end; an EXIF thumbnail's own markers come before the scans.
+#[cfg(feature = "io")]
+fn jpeg_has_end(bytes: &[u8]) -> bool {
+    let Some(last_scan) = bytes.windows(2).rposition(|w| w == [0xFF, 0xDA]) else {
+        return false;
+    };
+    bytes[last_scan..].windows(2).any(|w| w == [0xFF, 0xD9])
+}
+
+/// The name of a format in messages.
+#[cfg(feature = "io")]
+fn format_name(format: image::ImageFormat) -> &'static str {
+    match format {
+        image::ImageFormat::Png => "PNG",
+        image::ImageFormat::Jpeg => "JPEG",
+        image::ImageFormat::WebP => "WebP",
+        image::ImageFormat::Gif => "GIF",
+        image::ImageFormat::Tiff => "TIFF",
+        image::ImageFormat::Bmp => "BMP",
+        image::ImageFormat::OpenExr => "OpenEXR (use Image::read_exr)",
+        image::ImageFormat::Avif => "AVIF",
+        _ => "another image format",
+    }
+}
+
+/// A decoder error as an [`Error::Invalid`] saying what was wrong with the data.
+#[cfg(feature = "io")]
+fn decode_error(name: &str, e: image::ImageError, limits: &ReadLimits) -> Error {
+    match e {
+        image::ImageError::Limits(l) => Error::invalid(
+            "image size",
+            format!(
+                "an image within the decoding limits ({m}×{m} pixels, {p} pixels in all): {l}",
+                m = limits.max_side,
+                p = limits.max_pixels
+            ),
+        ),
+        image::ImageError::IoError(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+            Error::invalid(format!("{name} data"), format!("a complete {name} file, but it ends early (truncated?)"))
+        }
+        other => Error::invalid(format!("{name} data"), format!("a readable {name} image ({other})")),
     }
 }
 

@@ -3,7 +3,8 @@
 //!
 //! Cargo features:
 //! - `io` (default): mesh files (OBJ, PLY, glTF / GLB: the `io` module, `load_mesh`,
-//!   `save_mesh`), PNG / EXR images (`Image::read_png`, `Image::write_exr`, …), view-set
+//!   `save_mesh`), images (`Image::read` for PNG / JPEG / WebP, `Image::read_png`,
+//!   `Image::write_exr`, …), view-set
 //!   folders (`ViewSet::save` / `ViewSet::load`), rig JSON (`ViewRig::save_json` /
 //!   `ViewRig::load_json`) and atomic writes (`io::write_atomic`). Implies `serde`.
 //! - `serde`: `Serialize` / `Deserialize` for [`Camera`], [`Projection`], [`RigView`] and
@@ -50,7 +51,7 @@ pub mod viewset;
 
 pub use camera::{Camera, Projection, Ray};
 pub use error::{Error, Result};
-pub use image::Image;
+pub use image::{Image, ReadLimits};
 pub use intersect::{self_intersections, self_intersections_involving};
 #[cfg(feature = "io")]
 pub use io::{load_mesh, save_mesh};

@@ -1,6 +1,8 @@
 //! `wonder3d generate IMAGE --weights DIR --out VIEWS_DIR [--camera ortho|persp]
-//! [--scheduler ddim|dpmpp-2m] [--steps N] [--guidance G] [--eta E] [--seed S]`: the 6 normal + 6 colour views of an RGBA image from the
+//! [--scheduler ddim|dpmpp-2m] [--steps N] [--guidance G] [--eta E] [--seed S]
+//! [--min-confidence C]`: the 6 normal + 6 colour views of a photo or RGBA image from the
 //! Wonder3D++ multi-view diffusion model, written as a view-set folder with a contact sheet.
+//! The image is prepared as `wonder3d prepare` does first.
 
 #[cfg(feature = "diffusion")]
 use std::path::Path;
@@ -38,13 +40,29 @@ pub struct ModelArgs {
     /// Seed of all sampling noise (the same seed gives the same views).
     #[arg(long, default_value_t = 42, allow_hyphen_values = true, value_parser = crate::args::seed)]
     pub seed: u64,
+    /// Refuse automatic background removal less confident than this, in [0, 1] (photos
+    /// without alpha; 0 accepts every mask).
+    #[arg(long, default_value_t = 0.5)]
+    pub min_confidence: f32,
+}
+
+impl ModelArgs {
+    /// The preparation of the input image these arguments ask for (checked).
+    #[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
+    pub fn prepare_options(&self) -> Result<wonder3d::PrepareOptions> {
+        if !(0.0..=1.0).contains(&self.min_confidence) {
+            return Err(Error::invalid("--min-confidence", format!("a value in [0, 1], got {}", self.min_confidence)));
+        }
+        Ok(wonder3d::PrepareOptions::default().with_min_confidence(self.min_confidence))
+    }
 }
 
 /// Arguments of `wonder3d generate`.
 #[derive(clap::Args)]
 #[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
 pub struct GenerateArgs {
-    /// Input image: a PNG with an alpha channel masking the object (background removed).
+    /// Input image: a photo (JPEG, PNG or WebP; background removed automatically) or an RGBA
+    /// image whose alpha masks the object.
     pub image: PathBuf,
     #[command(flatten)]
     pub model: ModelArgs,
@@ -62,7 +80,7 @@ mod with_model {
     use super::*;
     use crate::progress;
     use wonder3d::sheet::{SheetRow, contact_sheet, normal_picture};
-    use wonder3d::{CameraType, Generated, Generator, Image, SampleOptions, SamplerKind};
+    use wonder3d::{CameraType, Generated, Generator, SampleOptions, SamplerKind};
 
     /// Loads the model of `args` with its sampling options.
     pub fn load(args: &ModelArgs) -> Result<Generator> {
@@ -82,7 +100,7 @@ mod with_model {
             camera,
             seed: args.seed,
         };
-        Ok(Generator::load(&args.weights)?.with_options(options))
+        Ok(Generator::load(&args.weights)?.with_options(options).with_prepare_options(args.prepare_options()?))
     }
 
     /// Writes the view set, `input.png` and the labelled `views.png` into `dir`, all at once
@@ -107,7 +125,12 @@ mod with_model {
     /// Runs `wonder3d generate`.
     pub fn run(args: &GenerateArgs) -> Result<()> {
         wonder3d::check_out_dir(&args.out)?;
-        let rgba = Image::read_png(&args.image)?;
+        // Read and prepare the image before loading the weights: a refused photo fails fast.
+        let prepared = wonder3d::prepare_image(&args.image, &args.model.prepare_options()?)?;
+        if !args.quiet {
+            eprintln!("{}", crate::prepare::describe(&args.image, &prepared));
+        }
+        let rgba = prepared.rgba;
         let bar = progress::bar(args.quiet)?;
         bar.set_prefix("load");
         bar.set_message(format!("weights from {}", args.model.weights.display()));

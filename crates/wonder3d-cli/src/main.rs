@@ -8,8 +8,9 @@
 //! wonder3d eval spot.glb assets/spot.obj --json  # chamfer, fscore_0.01, iou_64, …
 //! wonder3d texture assets/spot.obj views/spot --normalize --out spot.glb  # uv atlas + baked texture
 //! wonder3d demo --out demo                     # the whole pipeline on the bundled spot
-//! wonder3d generate cup.png --weights ckpts --out views/cup  # 6 views x {normal, colour} (docs/weights.md)
-//! wonder3d run cup.png --weights ckpts --out cup.glb          # generate -> reconstruct -> texture
+//! wonder3d prepare mug.jpg --out mug.png --mask-out mask.png  # photo -> framed RGBA (background removed)
+//! wonder3d generate cup.jpg --weights ckpts --out views/cup  # 6 views x {normal, colour} (docs/weights.md)
+//! wonder3d run cup.jpg --weights ckpts --out cup.glb          # prepare -> generate -> reconstruct -> texture
 //! ```
 
 mod args;
@@ -17,6 +18,7 @@ mod demo;
 mod eval;
 mod generate;
 mod info;
+mod prepare;
 mod progress;
 mod reconstruct;
 mod render;
@@ -48,7 +50,9 @@ enum Command {
     Texture(texture::TextureArgs),
     /// The whole pipeline on the bundled spot, no downloads: views → mesh → texture → GLB + report.
     Demo(demo::DemoArgs),
-    /// Generate 6 normal + 6 colour views of an RGBA image with the multi-view diffusion model.
+    /// A photo or RGBA image → the model's input: background removed (with a confidence score), cropped and centred.
+    Prepare(prepare::PrepareArgs),
+    /// Generate 6 normal + 6 colour views of a photo or RGBA image with the multi-view diffusion model.
     Generate(generate::GenerateArgs),
     /// One image to a textured mesh: generate → reconstruct → texture.
     Run(run::RunArgs),
@@ -63,6 +67,7 @@ fn main() -> ExitCode {
         Command::Reconstruct(args) => reconstruct::run(&args),
         Command::Texture(args) => texture::run(&args),
         Command::Demo(args) => demo::run(&args),
+        Command::Prepare(args) => prepare::run(&args),
         Command::Generate(args) => generate::run(&args),
         Command::Run(args) => run::run(&args),
     };

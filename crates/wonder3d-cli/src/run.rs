@@ -1,4 +1,5 @@
-//! `wonder3d run IMAGE --weights DIR --out mesh.glb`: generate → reconstruct → texture.
+//! `wonder3d run IMAGE --weights DIR --out mesh.glb`: prepare (background removal, framing)
+//! → generate → reconstruct → texture.
 
 use std::path::PathBuf;
 
@@ -11,7 +12,8 @@ use crate::generate::ModelArgs;
 #[derive(clap::Args)]
 #[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
 pub struct RunArgs {
-    /// Input image: a PNG with an alpha channel masking the object (background removed).
+    /// Input image: a photo (JPEG, PNG or WebP; background removed automatically) or an RGBA
+    /// image whose alpha masks the object.
     image: PathBuf,
     #[command(flatten)]
     model: ModelArgs,
@@ -40,13 +42,18 @@ pub struct RunArgs {
 #[cfg(feature = "diffusion")]
 pub fn run(args: &RunArgs) -> Result<()> {
     use wonder3d::core::io::write_atomic;
-    use wonder3d::{Error, Image, Pipeline, check_outputs};
+    use wonder3d::{Error, Pipeline, check_outputs};
 
     use crate::{generate, progress};
 
     check_outputs(&args.out, args.report.as_deref(), args.views.as_deref())?;
     TextureOptions::default().with_size(args.texture_size).validate()?;
-    let rgba = Image::read_png(&args.image)?;
+    // Read and prepare the image before loading the weights: a refused photo fails fast.
+    let prepared = wonder3d::prepare_image(&args.image, &args.model.prepare_options()?)?;
+    if !args.quiet {
+        eprintln!("{}", crate::prepare::describe(&args.image, &prepared));
+    }
+    let rgba = prepared.rgba;
     let bar = progress::bar(args.quiet)?;
     bar.set_prefix("load");
     let pipeline = Pipeline::new()

@@ -1,7 +1,7 @@
-#![cfg(feature = "diffusion")]
 //! `wonder3d generate` on the tiny Wonder3D checkpoint of w3d-diffusion's fixtures writes a
 //! view-set folder that `wonder3d reconstruct` reads; `wonder3d run` chains the three stages;
 //! bad input gets clear errors.
+#![cfg(feature = "diffusion")]
 
 use std::path::PathBuf;
 use std::process::Command;
@@ -143,4 +143,37 @@ fn generate_names_what_is_wrong() {
     assert!(!run.status.success());
     let err = String::from_utf8_lossy(&run.stderr);
     assert!(err.contains("ortho, persp"), "{err}");
+}
+
+#[test]
+fn generate_accepts_an_rgb_photo() {
+    // No alpha: a shaded disc on a light grey backdrop; the background is removed first.
+    let dir = tempfile::tempdir().unwrap();
+    let (w, h) = (64u32, 48u32);
+    let mut photo = Image::filled(w, h, 3, 0.85).unwrap();
+    for y in 0..h {
+        for x in 0..w {
+            let (dx, dy) = (x as f32 - 32.0, y as f32 - 24.0);
+            if dx * dx + dy * dy < 14.0 * 14.0 {
+                photo.pixel_mut(x, y).copy_from_slice(&[0.2 + x as f32 / 128.0, 0.3, 0.7]);
+            }
+        }
+    }
+    let input = dir.path().join("photo.png");
+    photo.write_png(&input).unwrap();
+    let views = dir.path().join("views");
+    let run = wonder3d(&[
+        "generate",
+        input.to_str().unwrap(),
+        "--weights",
+        &tiny_weights(),
+        "--out",
+        views.to_str().unwrap(),
+        "--steps",
+        "2",
+    ]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("mask from segmented"), "{err}");
+    assert!(views.join("input.png").is_file());
 }

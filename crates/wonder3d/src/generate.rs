@@ -1,9 +1,11 @@
-//! [`Generator`]: the Wonder3D++ multi-view diffusion model loaded once, turning RGBA images
-//! into 6 normal + 6 colour views (feature `diffusion`).
+//! [`Generator`]: the Wonder3D++ multi-view diffusion model loaded once, turning images (RGBA,
+//! or photos whose background `w3d-photo` removes) into 6 normal + 6 colour views (feature
+//! `diffusion`).
 
 use std::path::Path;
 
 use w3d_diffusion::{Device, MultiViewPipeline, SampleOptions, prepare_input};
+use w3d_photo::PrepareOptions;
 
 use crate::pipeline::{Progress, Stage};
 use crate::{Image, Result, ViewSet};
@@ -34,6 +36,7 @@ pub struct Generator {
     pipeline: MultiViewPipeline,
     device: Device,
     options: SampleOptions,
+    prepare: PrepareOptions,
 }
 
 impl Generator {
@@ -47,13 +50,25 @@ impl Generator {
     /// Loads a checkpoint directory onto `device`.
     pub fn load_on(dir: impl AsRef<Path>, device: Device) -> Result<Generator> {
         let pipeline = MultiViewPipeline::from_dir(dir, &device)?;
-        Ok(Generator { pipeline, device, options: SampleOptions::default() })
+        Ok(Generator { pipeline, device, options: SampleOptions::default(), prepare: PrepareOptions::default() })
     }
 
     /// The same model with other sampling options (steps, guidance, eta, camera type, seed).
     pub fn with_options(mut self, options: SampleOptions) -> Generator {
         self.options = options;
         self
+    }
+
+    /// The same model with other options for photos without alpha (background removal,
+    /// confidence threshold); see [`w3d_photo::prepare`].
+    pub fn with_prepare_options(mut self, prepare: PrepareOptions) -> Generator {
+        self.prepare = prepare;
+        self
+    }
+
+    /// The options for photos without alpha.
+    pub fn prepare_options(&self) -> &PrepareOptions {
+        &self.prepare
     }
 
     /// The sampling options in use.
@@ -66,10 +81,20 @@ impl Generator {
         &self.pipeline
     }
 
-    /// Generates the views of one RGBA image (alpha masks the object): preprocessing, CLIP
-    /// and VAE conditions, guided sampling (one [`Stage::Denoise`] event per step), decoding.
-    pub fn generate(&self, rgba: &Image, progress: &mut dyn FnMut(Progress)) -> Result<Generated> {
+    /// Generates the views of one image: an RGBA image whose alpha masks the object, or a
+    /// photo without a meaningful alpha, whose background is first removed by
+    /// [`w3d_photo::prepare`] (an error naming the reasons when that is not confident
+    /// enough). Then preprocessing (crop, 75 % framing on white), CLIP and VAE conditions,
+    /// guided sampling (one [`Stage::Denoise`] event per step), decoding.
+    pub fn generate(&self, image: &Image, progress: &mut dyn FnMut(Progress)) -> Result<Generated> {
         progress(Progress::new(Stage::Condition, 0, 1, None));
+        let prepared;
+        let rgba = if w3d_photo::has_meaningful_alpha(image) && image.channels() == 4 {
+            image
+        } else {
+            prepared = w3d_photo::prepare(image, &self.prepare)?;
+            &prepared.rgba
+        };
         let input = prepare_input(rgba, self.pipeline.image_size() as u32)?;
         let cond = self.pipeline.condition(&input, &self.device)?;
         progress(Progress::new(Stage::Condition, 1, 1, None));

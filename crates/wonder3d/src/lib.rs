@@ -4,7 +4,10 @@
 //!
 //! [`Pipeline`] is the whole job as one object: views (normal maps, masks and colours of a
 //! 6-view rig) → closed mesh → UV atlas and baked texture, or, with a loaded model (feature
-//! `diffusion`, on by default), an RGBA image → generated views → the same. One staged
+//! `diffusion`, on by default), an image → generated views → the same. The image is an RGBA
+//! image whose alpha masks the object, or a photo of an object on a plain, graded or softly
+//! shadowed background: [`photo`] removes the background (with a confidence score that
+//! refuses what it cannot trust) and frames the object ([`prepare_image`]). One staged
 //! [`Progress`] callback and one serialisable [`Report`] cover every stage. Each stage is
 //! also its own crate, re-exported here ([`recon`], [`texture`], [`raster`], …): depend on
 //! `w3d-recon` alone to embed only the mesh extraction in an engine (no file formats, no
@@ -33,7 +36,7 @@
 //!
 //! let model = Generator::load("ckpts/wonder3d_plus")?;
 //! let pipeline = Pipeline::new().with_model(model);
-//! let output = pipeline.from_image(&Image::read_png("cup.png")?, &mut |_| {})?;
+//! let output = pipeline.from_image(&Image::read("cup.jpg")?, &mut |_| {})?; // a photo or RGBA
 //! output.save("cup.glb")?;
 //! # }
 //! # Ok::<(), wonder3d::Error>(())
@@ -42,11 +45,13 @@
 pub mod demo;
 #[cfg(feature = "diffusion")]
 mod generate;
+mod input;
 mod pipeline;
 pub mod sheet;
 
 #[cfg(feature = "diffusion")]
 pub use generate::{Generated, Generator};
+pub use input::{check_png_output, prepare_image};
 pub use pipeline::{
     GenerationReport, Output, Pipeline, Progress, Report, Seconds, Stage, TextureStage, check_mesh_output,
     check_out_dir, check_out_folder, check_outputs, check_parent, mesh_output_files,
@@ -66,6 +71,10 @@ pub use w3d_diffusion::{CameraType, SampleOptions, SamplerKind};
 /// Evaluation metrics: Chamfer, F-score, volume IoU, normal consistency, PSNR / SSIM
 /// (the `w3d-eval` crate).
 pub use w3d_eval as eval;
+/// Photos in: background removal with a confidence score, and the authors' framing (the
+/// `w3d-photo` crate).
+pub use w3d_photo as photo;
+pub use w3d_photo::{PrepareOptions, Prepared};
 /// The differentiable CPU rasteriser and render helpers (the `w3d-raster` crate).
 pub use w3d_raster as raster;
 /// Mesh extraction from normal maps: initialisation, coarse reconstruction, untangling and

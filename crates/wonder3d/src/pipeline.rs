@@ -445,8 +445,10 @@ impl Pipeline {
         self.model.as_ref()
     }
 
-    /// One image to a textured mesh: the model generates 6 normal + 6 colour views of the
-    /// RGBA `image` (alpha masks the object), then [`Pipeline::from_views`] runs on them.
+    /// One image to a textured mesh: the model generates 6 normal + 6 colour views of
+    /// `image` (RGBA with the object masked by alpha, or a photo whose background is removed
+    /// automatically; see [`crate::Generator::generate`]), then [`Pipeline::from_views`]
+    /// runs on them.
     pub fn from_image(&self, image: &Image, progress: &mut dyn FnMut(Progress)) -> Result<Output> {
         let model = self.model.as_ref().ok_or_else(|| {
             Error::invalid("pipeline model", "a loaded model (Pipeline::with_model) before from_image")
