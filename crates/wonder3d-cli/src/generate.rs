@@ -8,9 +8,7 @@
 use std::path::Path;
 use std::path::PathBuf;
 
-#[cfg(not(feature = "diffusion"))]
-use wonder3d::Error;
-use wonder3d::Result;
+use wonder3d::{Error, Result};
 
 use crate::args::{CameraArg, SchedulerArg};
 
