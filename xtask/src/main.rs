@@ -20,6 +20,10 @@
 //!   scikit-image from PyPI). The outputs are committed; tests never need Python.
 //! - `cargo xtask fixtures diffusion`: regenerates the parity fixtures of `w3d-diffusion`
 //!   (tiny random-weight diffusers / transformers models, `xtask/python/fixtures_diffusion.py`)
+//! - `cargo xtask fixtures photo`: builds the background-removal composite set (the RGBA
+//!   examples of `../shared/data/images` over six backdrops at two scales), scores
+//!   `w3d-photo` on it and writes `target/composites/composites.{json,md}` (the tables of
+//!   `docs/input.md`); the composites stay in memory, the images may not be redistributed
 //!   with the Python named by `W3D_PYTHON`, or a venv in `target/tools/diffusionvenv` with
 //!   torch (CPU), diffusers, transformers, safetensors and pillow from PyPI.
 //! - `cargo xtask bench diffusion` also times diffusers' UNet on torch CPU (same config and
@@ -64,7 +68,7 @@ enum Task {
     },
     /// Regenerate committed test fixtures with the Python peer tools.
     Fixtures {
-        /// Which fixtures: `eval` or `diffusion`.
+        /// Which fixtures: `eval`, `diffusion` or `photo`.
         which: String,
     },
     /// Draw the SVG charts in docs/ (speed against accuracy) from target/bench/*.json.
@@ -382,12 +386,27 @@ fn diffusion_python() -> Result<PathBuf, String> {
 }
 
 fn fixtures(which: &str) -> Result<(), String> {
+    if which == "photo" {
+        // `--workspace` resolves features as the test build does, so nothing is rebuilt.
+        let root = workspace_root();
+        run(Command::new("cargo").current_dir(&root).args([
+            "build",
+            "--release",
+            "--workspace",
+            "--example",
+            "composites",
+        ]))?;
+        return run(Command::new(target_dir().join("release").join("examples").join("composites"))
+            .current_dir(&root)
+            .arg(root.join("..").join("shared").join("data").join("images"))
+            .arg(target_dir().join("composites")));
+    }
     if which == "diffusion" {
         let root = workspace_root();
         return run(Command::new(diffusion_python()?).current_dir(&root).arg("xtask/python/fixtures_diffusion.py"));
     }
     if which != "eval" {
-        return Err(format!("unknown fixture set {which:?}; expected `eval` or `diffusion`"));
+        return Err(format!("unknown fixture set {which:?}; expected `eval`, `diffusion` or `photo`"));
     }
     let root = workspace_root();
     let venv = root.join("target").join("tools").join("evalvenv");
