@@ -18,11 +18,13 @@
 //! * the second half of the rounds smooths only (separation moves can cycle).
 //!
 //! After the first full check, a round re-checks only the triangles whose vertices moved
-//! ([`self_intersections_involving`]). Measured on oracle views (default preset, 400
-//! rounds): every crossing removed on all 14 closed test meshes in both rigs and on the
-//! teapot and both teacups, with Chamfer distances as before or better (rocker arm,
-//! orthographic: 824 pairs → 0 and CD 0.0094, against 72 left and 0.0098 for smoothing
-//! alone; `docs/accuracy.md`).
+//! ([`self_intersections_involving`]). Measured on oracle views (400 rounds, 14 closed test
+//! meshes, both rigs, all presets; `docs/accuracy.md`): every crossing removed but in two
+//! cells — spot, perspective, default preset (59 pairs → 3) and plane, orthographic, fine
+//! preset (2024 → 9) — which appeared when the rendered oracle normals moved to the shared
+//! `w3d_core::normals` (before that every cell reached 0). Against smoothing alone the
+//! separation moves remove far more (rocker arm, orthographic: 492 pairs → 0 and CD 0.0068,
+//! where smoothing alone left 72 pairs).
 
 use std::collections::HashMap;
 
