@@ -107,6 +107,21 @@ fn rescale_zero_terminal_snr(alphas_cumprod: &[f64]) -> Vec<f64> {
     alphas_cumprod.iter().map(|a| ((a.sqrt() - last) * first / (first - last)).powi(2)).collect()
 }
 
+/// `trailing` spacing, descending: `round(arange(T, 0, -T/n)) - 1` (the same for every
+/// diffusers scheduler).
+fn trailing_timesteps(t: usize, n: usize) -> Vec<usize> {
+    let ratio = t as f64 / n as f64;
+    (0..n).map(|i| round_half_even(t as f64 - i as f64 * ratio) as usize - 1).collect()
+}
+
+/// Fails if a timestep (shifted by `steps_offset`) reaches the training length `t`.
+fn check_below(timesteps: &[usize], t: usize) -> Result<(), Error> {
+    match timesteps.iter().find(|&&s| s >= t) {
+        Some(&bad) => Err(Error::invalid("steps_offset", format!("timesteps below {t} (found {bad})"))),
+        None => Ok(()),
+    }
+}
+
 fn check_steps(steps: usize, t: usize) -> Result<(), Error> {
     if steps == 0 || steps > t {
         return Err(Error::invalid("num_inference_steps", format!("1..={t} (found {steps})")));
@@ -136,15 +151,9 @@ impl DdimScheduler {
                 linspace(0.0, (t - 1) as f64, n).into_iter().rev().map(|v| round_half_even(v) as usize).collect()
             }
             "leading" => (0..n).rev().map(|i| i * (t / n) + c.steps_offset).collect(),
-            _ => {
-                // trailing: round(arange(T, 0, -T/n)) - 1
-                let ratio = t as f64 / n as f64;
-                (0..n).map(|i| round_half_even(t as f64 - i as f64 * ratio) as usize - 1).collect()
-            }
+            _ => trailing_timesteps(t, n),
         };
-        if let Some(&bad) = timesteps.iter().find(|&&s| s >= t) {
-            return Err(Error::invalid("steps_offset", format!("timesteps below {t} (found {bad})")));
-        }
+        check_below(&timesteps, t)?;
         let final_alpha_cumprod = if c.set_alpha_to_one { 1.0 } else { schedule.alphas_cumprod[0] };
         Ok(Self { schedule, final_alpha_cumprod, timesteps, num_inference_steps: n })
     }
@@ -233,10 +242,7 @@ impl DdimInverseScheduler {
         let n = num_inference_steps;
         let timesteps: Vec<usize> = match c.timestep_spacing.as_str() {
             "leading" => (0..n).map(|i| i * (t / n) + c.steps_offset).collect(),
-            "trailing" => {
-                let ratio = t as f64 / n as f64;
-                (0..n).rev().map(|i| round_half_even(t as f64 - i as f64 * ratio) as usize - 1).collect()
-            }
+            "trailing" => trailing_timesteps(t, n).into_iter().rev().collect(),
             other => {
                 return Err(Error::invalid(
                     "timestep_spacing",
@@ -244,9 +250,7 @@ impl DdimInverseScheduler {
                 ));
             }
         };
-        if let Some(&bad) = timesteps.iter().find(|&&s| s >= t) {
-            return Err(Error::invalid("steps_offset", format!("timesteps below {t} (found {bad})")));
-        }
+        check_below(&timesteps, t)?;
         let initial_alpha_cumprod = if c.set_alpha_to_one { 1.0 } else { schedule.alphas_cumprod[0] };
         Ok(Self { schedule, initial_alpha_cumprod, timesteps, num_inference_steps: n })
     }
@@ -401,14 +405,9 @@ impl DpmSolverMultistepScheduler {
                 let ratio = t / (n + 1);
                 (1..=n).rev().map(|i| i * ratio + c.steps_offset).collect()
             }
-            _ => {
-                let ratio = t as f64 / n as f64;
-                (0..n).map(|i| round_half_even(t as f64 - i as f64 * ratio) as usize - 1).collect()
-            }
+            _ => trailing_timesteps(t, n),
         };
-        if let Some(&bad) = timesteps.iter().find(|&&s| s >= t) {
-            return Err(Error::invalid("steps_offset", format!("timesteps below {t} (found {bad})")));
-        }
+        check_below(&timesteps, t)?;
         let mut sigmas: Vec<f64> = timesteps
             .iter()
             .map(|&s| {
@@ -469,15 +468,17 @@ impl DpmSolverMultistepScheduler {
         // exp(−h) − 1, which is −1 at the final σ = 0 (h = ∞).
         let phi = (-h).exp() - 1.0;
         let last = i + 1 == self.timesteps.len();
+        // First order (DPM-Solver++ 1 = DDIM in λ); the second-order correction uses the
+        // previous x₀ except on the last step, which diffusers keeps first order.
+        let first_order = sample * (sigma_t / sigma_s0) - x0.clone() * (alpha_t * phi);
         let prev = match (&self.previous, last) {
             (Some(previous_x0), false) => {
                 let (alpha_s1, sigma_s1) = alpha_sigma(self.sigmas[i - 1]);
-                let h0 = lambda(alpha_s0, sigma_s0) - lambda(alpha_s1, sigma_s1);
-                let r0 = h0 / h;
+                let r0 = (lambda(alpha_s0, sigma_s0) - lambda(alpha_s1, sigma_s1)) / h;
                 let d1 = (x0.clone() - previous_x0.clone()) * (1.0 / r0);
-                sample * (sigma_t / sigma_s0) - x0.clone() * (alpha_t * phi) - d1 * (0.5 * alpha_t * phi)
+                first_order - d1 * (0.5 * alpha_t * phi)
             }
-            _ => sample * (sigma_t / sigma_s0) - x0.clone() * (alpha_t * phi),
+            _ => first_order,
         };
         self.previous = Some(x0);
         self.step_index += 1;
