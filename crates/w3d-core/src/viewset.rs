@@ -171,18 +171,11 @@ impl ViewSet {
     pub fn save_with(&self, dir: impl AsRef<Path>, extra: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
         let dir = dir.as_ref();
         ViewSet::check_output_dir(dir)?;
-        let staging = sibling(dir, "partial")?;
-        let written = (|| {
-            std::fs::create_dir(&staging).map_err(|e| Error::io(&staging, e))?;
-            self.write_files(&staging)?;
-            extra(&staging)?;
-            write_manifest(&staging, &self.rig)
-        })();
-        if let Err(e) = written {
-            let _ = std::fs::remove_dir_all(&staging);
-            return Err(e);
-        }
-        replace_dir(&staging, dir)
+        crate::io::write_dir_atomic(dir, |staging| {
+            self.write_files(staging)?;
+            extra(staging)?;
+            write_manifest(staging, &self.rig)
+        })
     }
 
     /// Fails unless `dir` can receive a view set from [`ViewSet::save`] without losing
@@ -347,14 +340,6 @@ fn view_file_names(name: &str) -> [String; 5] {
     ]
 }
 
-/// 64-bit FNV-1a hash of `bytes`, as 16 hex digits.
-#[cfg(feature = "io")]
-fn fnv1a64(bytes: &[u8]) -> String {
-    let hash =
-        bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3));
-    format!("{hash:016x}")
-}
-
 /// Writes `cameras.json` into `dir`: the rig, plus `files`, the size and hash of every view
 /// file already in `dir`.
 #[cfg(feature = "io")]
@@ -365,7 +350,7 @@ fn write_manifest(dir: &Path, rig: &ViewRig) -> Result<()> {
             let path = dir.join(&name);
             if path.is_file() {
                 let bytes = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
-                files.insert(name, serde_json::json!({ "bytes": bytes.len(), "fnv1a64": fnv1a64(&bytes) }));
+                files.insert(name, serde_json::json!({ "bytes": bytes.len(), "fnv1a64": crate::io::fnv1a64(&bytes) }));
             }
         }
     }
@@ -412,7 +397,7 @@ fn check_manifest(dir: &Path, rig: &ViewRig) -> Result<()> {
             let len = std::fs::metadata(&path).map_err(|e| Error::io(&path, e))?.len();
             let matches = len == bytes && {
                 let data = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
-                fnv1a64(&data) == hash
+                crate::io::fnv1a64(&data) == hash
             };
             if !matches {
                 return Err(Error::format(
@@ -426,38 +411,6 @@ fn check_manifest(dir: &Path, rig: &ViewRig) -> Result<()> {
         }
     }
     Ok(())
-}
-
-/// A path beside `dir` for a staging or backup folder: `.<name>.<what>-<pid>-<n>`.
-#[cfg(feature = "io")]
-fn sibling(dir: &Path, what: &str) -> Result<std::path::PathBuf> {
-    let name = dir
-        .file_name()
-        .ok_or_else(|| Error::invalid(format!("output folder {}", dir.display()), "a folder name"))?
-        .to_string_lossy()
-        .into_owned();
-    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.subsec_nanos());
-    Ok(dir.with_file_name(format!(".{name}.{what}-{}-{nanos}", std::process::id())))
-}
-
-/// Moves the finished folder `staging` to `dir`, replacing an existing `dir` (moved aside
-/// first and deleted only once `staging` is in place; put back if the move fails).
-#[cfg(feature = "io")]
-fn replace_dir(staging: &Path, dir: &Path) -> Result<()> {
-    let fail = |e: std::io::Error| {
-        let _ = std::fs::remove_dir_all(staging);
-        Error::io(dir, e)
-    };
-    if !dir.exists() {
-        return std::fs::rename(staging, dir).map_err(fail);
-    }
-    let old = sibling(dir, "old")?;
-    std::fs::rename(dir, &old).map_err(fail)?;
-    if let Err(e) = std::fs::rename(staging, dir) {
-        let _ = std::fs::rename(&old, dir);
-        return Err(fail(e));
-    }
-    std::fs::remove_dir_all(&old).map_err(|e| Error::io(&old, e))
 }
 
 /// Splits an RGBA image into (RGB mapped by `f`, alpha).

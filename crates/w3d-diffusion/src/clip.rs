@@ -8,7 +8,7 @@ use std::path::Path;
 
 use burn::module::Module;
 use burn::tensor::activation::{gelu, sigmoid};
-use burn::tensor::{Device, Tensor, TensorData};
+use burn::tensor::{Device, Tensor};
 use w3d_core::Error;
 
 use crate::config::ClipVisionConfig;
@@ -86,19 +86,13 @@ impl ClipVision {
         let patch_in = c.num_channels * patch * patch;
         let tokens = c.patches_per_side().pow(2) + 1;
         let class_embedding = p.param("vision_model.embeddings.class_embedding", [d], Init::Uniform { fan_in: d });
-        let w = p.values(
-            "vision_model.embeddings.patch_embedding.weight",
-            &[d, c.num_channels, patch, patch],
-            Init::Uniform { fan_in: patch_in },
-        );
-        let mut t = vec![0.0f32; w.len()];
-        for o in 0..d {
-            for i in 0..patch_in {
-                t[i * d + o] = w[o * patch_in + i];
-            }
-        }
         let patch_embedding = Linear {
-            weight: burn::module::Param::from_tensor(Tensor::from_data(TensorData::new(t, [patch_in, d]), p.device())),
+            weight: p.transposed_weight(
+                "vision_model.embeddings.patch_embedding.weight",
+                d,
+                &[c.num_channels, patch, patch],
+                Init::Uniform { fan_in: patch_in },
+            ),
             bias: None,
         };
         let position_embedding =

@@ -13,6 +13,41 @@ use serde::Deserialize;
 use serde::de::DeserializeOwned;
 use w3d_core::Error;
 
+/// The widest channel count, hidden size or attention width a config may ask for. A config is
+/// a claim that the weights are checked against only later: these bounds, far above every
+/// Stable-Diffusion-family model (widths up to 1280, CLIP-H MLP 5120), stop a damaged or
+/// hostile `config.json` from asking for terabytes or for hours of layer building first.
+pub const MAX_WIDTH: usize = 8192;
+/// The most layers a block (ResNets, transformer layers, CLIP encoder layers) may have.
+pub const MAX_LAYERS: usize = 128;
+/// The most resolution levels (down blocks) of a UNet or VAE.
+pub const MAX_LEVELS: usize = 8;
+/// The largest image side (pixels) a CLIP config may declare.
+pub const MAX_IMAGE_SIDE: usize = 4096;
+
+/// Fails unless `1 <= value <= max`, naming `field`.
+fn in_range(field: &str, value: usize, max: usize) -> Result<(), Error> {
+    if (1..=max).contains(&value) {
+        Ok(())
+    } else {
+        Err(Error::invalid(field, format!("a value in 1..={max}, found {value}")))
+    }
+}
+
+/// [`in_range`] for every entry of a per-block list.
+fn all_in_range(field: &str, values: &[usize], max: usize) -> Result<(), Error> {
+    values.iter().enumerate().try_for_each(|(i, &v)| in_range(&format!("{field}[{i}]"), v, max))
+}
+
+/// [`in_range`] for a `PerBlock` value.
+fn per_block_in_range(field: &str, value: &Option<PerBlock>, max: usize) -> Result<(), Error> {
+    match value {
+        None => Ok(()),
+        Some(PerBlock::All(v)) => in_range(field, *v, max),
+        Some(PerBlock::Each(v)) => all_in_range(field, v, max),
+    }
+}
+
 /// Reads and parses a JSON config file.
 fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T, Error> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
@@ -356,7 +391,23 @@ impl UNetConfig {
     /// Checks that every field holds a supported value.
     pub fn validate(&self) -> Result<(), Error> {
         let n = self.block_out_channels.len();
-        if n == 0 || self.down_block_types.len() != n || self.up_block_types.len() != n {
+        in_range("block_out_channels (levels)", n, MAX_LEVELS)?;
+        all_in_range("block_out_channels", &self.block_out_channels, MAX_WIDTH)?;
+        in_range("in_channels", self.in_channels, MAX_WIDTH)?;
+        in_range("out_channels", self.out_channels, MAX_WIDTH)?;
+        in_range("layers_per_block", self.layers_per_block, MAX_LAYERS)?;
+        in_range("norm_num_groups", self.norm_num_groups, MAX_WIDTH)?;
+        in_range("cross_attention_dim", self.cross_attention_dim, MAX_WIDTH)?;
+        per_block_in_range("transformer_layers_per_block", &self.transformer_layers_per_block, MAX_LAYERS)?;
+        per_block_in_range("attention_head_dim", &self.attention_head_dim, MAX_WIDTH)?;
+        per_block_in_range("num_attention_heads", &self.num_attention_heads, MAX_WIDTH)?;
+        if let Some(d) = self.projection_class_embeddings_input_dim {
+            in_range("projection_class_embeddings_input_dim", d, MAX_WIDTH)?;
+        }
+        if let Some(v) = self.num_views {
+            in_range("num_views", v, 64)?;
+        }
+        if self.down_block_types.len() != n || self.up_block_types.len() != n {
             return Err(Error::invalid(
                 "down_block_types/up_block_types",
                 format!("one entry per block_out_channels entry ({n})"),
@@ -617,7 +668,14 @@ impl VaeConfig {
     /// Checks that every field holds a supported value.
     pub fn validate(&self) -> Result<(), Error> {
         let n = self.block_out_channels.len();
-        if n == 0 || self.down_block_types.len() != n || self.up_block_types.len() != n {
+        in_range("block_out_channels (levels)", n, MAX_LEVELS)?;
+        all_in_range("block_out_channels", &self.block_out_channels, MAX_WIDTH)?;
+        in_range("in_channels", self.in_channels, MAX_WIDTH)?;
+        in_range("out_channels", self.out_channels, MAX_WIDTH)?;
+        in_range("latent_channels", self.latent_channels, MAX_WIDTH)?;
+        in_range("layers_per_block", self.layers_per_block, MAX_LAYERS)?;
+        in_range("norm_num_groups", self.norm_num_groups, MAX_WIDTH)?;
+        if self.down_block_types.len() != n || self.up_block_types.len() != n {
             return Err(Error::invalid("down_block_types/up_block_types", format!("{n} entries each")));
         }
         if let Some((i, t)) = self.down_block_types.iter().enumerate().find(|(_, t)| *t != "DownEncoderBlock2D") {
@@ -738,6 +796,16 @@ impl ClipVisionConfig {
 
     /// Checks that every field holds a supported value.
     pub fn validate(&self) -> Result<(), Error> {
+        in_range("hidden_size", self.hidden_size, MAX_WIDTH)?;
+        in_range("intermediate_size", self.intermediate_size, 4 * MAX_WIDTH)?;
+        in_range("projection_dim", self.projection_dim, MAX_WIDTH)?;
+        in_range("num_hidden_layers", self.num_hidden_layers, MAX_LAYERS)?;
+        in_range("num_channels", self.num_channels, 4)?;
+        in_range("image_size", self.image_size, MAX_IMAGE_SIDE)?;
+        in_range("patch_size", self.patch_size, self.image_size)?;
+        if self.image_size / self.patch_size > 256 {
+            return Err(Error::invalid("patch_size", "at most 256 patches per side"));
+        }
         if self.hidden_act != "quick_gelu" && self.hidden_act != "gelu" {
             return Err(unsupported("hidden_act", &self.hidden_act, "quick_gelu or gelu"));
         }
@@ -852,8 +920,11 @@ impl SchedulerConfig {
 
     /// Checks that every field holds a supported value.
     pub fn validate(&self) -> Result<(), Error> {
-        if self.num_train_timesteps == 0 {
-            return Err(Error::invalid("num_train_timesteps", "at least 1"));
+        if !(1..=100_000).contains(&self.num_train_timesteps) {
+            return Err(Error::invalid(
+                "num_train_timesteps",
+                format!("a value in 1..=100000, found {}", self.num_train_timesteps),
+            ));
         }
         if self.trained_betas.is_none()
             && !matches!(self.beta_schedule.as_str(), "linear" | "scaled_linear" | "squaredcos_cap_v2")

@@ -8,7 +8,7 @@ use burn::module::{Module, Param};
 use burn::tensor::activation::silu;
 use burn::tensor::module::{attention, conv2d, layer_norm};
 use burn::tensor::ops::{AttentionModuleOptions, ConvOptions, PadMode};
-use burn::tensor::{Tensor, TensorData, s};
+use burn::tensor::{Tensor, s};
 
 use crate::weights::{Init, ParamSource};
 
@@ -36,14 +36,7 @@ impl Linear {
         bias: bool,
         weight_init: Init,
     ) -> Self {
-        let w = p.values(&format!("{key}.weight"), &[d_out, d_in], weight_init);
-        let mut t = vec![0.0f32; w.len()];
-        for o in 0..d_out {
-            for i in 0..d_in {
-                t[i * d_out + o] = w[o * d_in + i];
-            }
-        }
-        let weight = Param::from_tensor(Tensor::from_data(TensorData::new(t, [d_in, d_out]), p.device()));
+        let weight = p.transposed_weight(&format!("{key}.weight"), d_out, &[d_in], weight_init);
         let bias = bias.then(|| p.param(&format!("{key}.bias"), [d_out], Init::Uniform { fan_in: d_in }));
         Self { weight, bias }
     }

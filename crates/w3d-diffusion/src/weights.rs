@@ -170,17 +170,14 @@ impl<'a> ParamSource<'a> {
         }
     }
 
-    /// The device parameters are created on.
-    pub(crate) fn device(&self) -> &Device {
-        &self.device
-    }
-
-    /// Values of `key` with `shape` (row-major f32); zeros if it is missing or misshaped (the
-    /// problem is recorded and reported by `finish`).
-    pub(crate) fn values(&mut self, key: &str, shape: &[usize], init: Init) -> Vec<f32> {
+    /// Values of `key` with `shape` (row-major f32), or `None` when the file lacks the key,
+    /// holds another shape or cannot be read (recorded and reported by `finish`). Nothing of
+    /// the config's size is allocated then: a config may claim any width (a `hidden_size` of
+    /// 400000 asks for 640 GB), and only the file's own, size-checked tensors are trusted.
+    fn values(&mut self, key: &str, shape: &[usize], init: Init) -> Option<Vec<f32>> {
         let n: usize = shape.iter().product();
         match &mut self.source {
-            Source::Random { state } => match init {
+            Source::Random { state } => Some(match init {
                 Init::Ones => vec![1.0; n],
                 Init::Zeros => vec![0.0; n],
                 Init::Uniform { fan_in } => {
@@ -195,11 +192,11 @@ impl<'a> ParamSource<'a> {
                         })
                         .collect()
                 }
-            },
+            }),
             Source::File { file, renamed, used } => {
                 let Some(file_key) = renamed.get(key).cloned() else {
                     self.missing.push(format!("{key} {shape:?}"));
-                    return vec![0.0; n];
+                    return None;
                 };
                 used.insert(file_key.clone());
                 let found = file.tensors[&file_key].shape.clone();
@@ -211,23 +208,54 @@ impl<'a> ParamSource<'a> {
                 };
                 if squeezed != shape {
                     self.wrong.push(format!("{key}: expected {shape:?}, found {found:?}"));
-                    return vec![0.0; n];
+                    return None;
                 }
                 match file.read_f32(&file_key) {
-                    Ok((values, _)) => values,
+                    Ok((values, _)) => Some(values),
                     Err(e) => {
                         self.unreadable.push(format!("{key}: {e}"));
-                        vec![0.0; n]
+                        None
                     }
                 }
             }
         }
     }
 
-    /// A parameter tensor of `shape`.
+    /// A parameter tensor of `shape`. Where the file lacks it (an error `finish` reports
+    /// before the model can run) the placeholder has every side 1.
     pub(crate) fn param<const D: usize>(&mut self, key: &str, shape: [usize; D], init: Init) -> Param<Tensor<D>> {
-        let values = self.values(key, &shape, init);
-        Param::from_tensor(Tensor::from_data(TensorData::new(values, shape), &self.device))
+        let tensor = match self.values(key, &shape, init) {
+            Some(values) => Tensor::from_data(TensorData::new(values, shape), &self.device),
+            None => Tensor::zeros([1; D], &self.device),
+        };
+        Param::from_tensor(tensor)
+    }
+
+    /// A weight stored PyTorch-style as `[d_out, in_shape…]` (a linear layer, or a
+    /// convolution applied as one), returned transposed as `[d_in, d_out]` with `d_in` the
+    /// product of `in_shape`, so the forward pass is `x · W`. Placeholder as in `param`.
+    pub(crate) fn transposed_weight(
+        &mut self,
+        key: &str,
+        d_out: usize,
+        in_shape: &[usize],
+        init: Init,
+    ) -> Param<Tensor<2>> {
+        let d_in: usize = in_shape.iter().product();
+        let shape: Vec<usize> = std::iter::once(d_out).chain(in_shape.iter().copied()).collect();
+        let tensor = match self.values(key, &shape, init) {
+            Some(w) => {
+                let mut t = vec![0.0f32; w.len()];
+                for o in 0..d_out {
+                    for i in 0..d_in {
+                        t[i * d_out + o] = w[o * d_in + i];
+                    }
+                }
+                Tensor::from_data(TensorData::new(t, [d_in, d_out]), &self.device)
+            }
+            None => Tensor::zeros([1, 1], &self.device),
+        };
+        Param::from_tensor(tensor)
     }
 
     /// Marks file keys matching `ignore` as used (buffers such as CLIP's `position_ids`).

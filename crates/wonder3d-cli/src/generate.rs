@@ -4,22 +4,28 @@
 //! Wonder3D++ multi-view diffusion model, written as a view-set folder with a contact sheet.
 //! The image is prepared as `wonder3d prepare` does first.
 
-#[cfg(feature = "diffusion")]
-use std::path::Path;
 use std::path::PathBuf;
 
 use wonder3d::{Error, Result};
 
 use crate::args::{CameraArg, SchedulerArg};
 
-/// The model and sampling options shared by `generate` and `run` (defaults: the Wonder3D++
-/// sampling settings — 50 DDIM steps, guidance 2, eta 1, seed 42).
+/// The model directory and its sampling options, shared by `generate` and `run`.
 #[derive(clap::Args)]
 #[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
 pub struct ModelArgs {
     /// Model directory (unet/, vae/, image_encoder/, scheduler/), as published (docs/weights.md).
     #[arg(long)]
     pub weights: PathBuf,
+    #[command(flatten)]
+    pub sampling: SamplingArgs,
+}
+
+/// Sampling and input options of the model, shared by `generate`, `run` and `batch`
+/// (defaults: the Wonder3D++ sampling settings — 50 DDIM steps, guidance 2, eta 1, seed 42).
+#[derive(clap::Args)]
+#[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
+pub struct SamplingArgs {
     /// Camera type of the generated views.
     #[arg(long, value_enum, default_value_t = CameraArg::Ortho)]
     pub camera: CameraArg,
@@ -44,7 +50,7 @@ pub struct ModelArgs {
     pub min_confidence: f32,
 }
 
-impl ModelArgs {
+impl SamplingArgs {
     /// The preparation of the input image these arguments ask for (checked).
     #[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
     pub fn prepare_options(&self) -> Result<wonder3d::PrepareOptions> {
@@ -77,11 +83,10 @@ pub struct GenerateArgs {
 mod with_model {
     use super::*;
     use crate::progress;
-    use wonder3d::sheet::{SheetRow, contact_sheet, normal_picture};
-    use wonder3d::{CameraType, Generated, Generator, SampleOptions, SamplerKind};
+    use wonder3d::{CameraType, Generator, SampleOptions, SamplerKind};
 
-    /// Loads the model of `args` with its sampling options.
-    pub fn load(args: &ModelArgs) -> Result<Generator> {
+    /// Loads the model in `weights` with the sampling options of `args`.
+    pub fn load(weights: &std::path::Path, args: &SamplingArgs) -> Result<Generator> {
         let camera = match args.camera {
             CameraArg::Ortho => CameraType::Orthographic,
             CameraArg::Persp => CameraType::Perspective,
@@ -98,33 +103,14 @@ mod with_model {
             camera,
             seed: args.seed,
         };
-        Ok(Generator::load(&args.weights)?.with_options(options).with_prepare_options(args.prepare_options()?))
-    }
-
-    /// Writes the view set, `input.png` and the labelled `views.png` into `dir`, all at once
-    /// (`ViewSet::save_with`: a failure leaves `dir` as it was).
-    pub fn save_generated(generated: &Generated, dir: &Path) -> Result<()> {
-        let mut colours = SheetRow { label: "colour".into(), images: Vec::new() };
-        let mut normals = SheetRow { label: "normal".into(), images: Vec::new() };
-        for v in generated.views.views() {
-            if let Some(c) = &v.colour {
-                colours.images.push(c.with_alpha(&v.mask)?);
-            }
-            normals.images.push(normal_picture(&v.normal, &v.mask)?);
-        }
-        let names: Vec<&str> = generated.views.rig().views.iter().map(|v| v.name.as_str()).collect();
-        let sheet = contact_sheet(&names, &[colours, normals])?;
-        generated.views.save_with(dir, |staging: &Path| {
-            generated.input.write_png(staging.join("input.png"))?;
-            sheet.write_png(staging.join("views.png"))
-        })
+        Ok(Generator::load(weights)?.with_options(options).with_prepare_options(args.prepare_options()?))
     }
 
     /// Runs `wonder3d generate`.
     pub fn run(args: &GenerateArgs) -> Result<()> {
         wonder3d::check_out_dir(&args.out)?;
         // Read and prepare the image before loading the weights: a refused photo fails fast.
-        let prepared = wonder3d::prepare_image(&args.image, &args.model.prepare_options()?)?;
+        let prepared = wonder3d::prepare_image(&args.image, &args.model.sampling.prepare_options()?)?;
         if !args.quiet {
             eprintln!("{}", crate::prepare::describe(&args.image, &prepared));
         }
@@ -132,10 +118,10 @@ mod with_model {
         let bar = progress::bar(args.quiet)?;
         bar.set_prefix("load");
         bar.set_message(format!("weights from {}", args.model.weights.display()));
-        let generator = load(&args.model)?;
+        let generator = load(&args.model.weights, &args.model.sampling)?;
         let generated = generator.generate(&rgba, &mut progress::follow(&bar))?;
         bar.finish_and_clear();
-        save_generated(&generated, &args.out)?;
+        generated.save(&args.out)?;
         println!(
             "generated {} views ({}×{}, {}) of {} -> {}",
             generated.views.len(),
@@ -150,7 +136,7 @@ mod with_model {
 }
 
 #[cfg(feature = "diffusion")]
-pub use with_model::{load, run, save_generated};
+pub use with_model::{load, run};
 
 /// The error of `generate` and `run` in a binary built without the model.
 #[cfg(not(feature = "diffusion"))]

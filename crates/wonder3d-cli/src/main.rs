@@ -11,9 +11,11 @@
 //! wonder3d prepare mug.jpg --out mug.png --mask-out mask.png  # photo -> framed RGBA (background removed)
 //! wonder3d generate cup.jpg --weights ckpts --out views/cup  # 6 views x {normal, colour} (docs/weights.md)
 //! wonder3d run cup.jpg --weights ckpts --out cup.glb          # prepare -> generate -> reconstruct -> texture
+//! wonder3d batch items.txt --out results --jobs 2 [--weights ckpts] [--shard 0/8] [--resume]  # many objects
 //! ```
 
 mod args;
+mod batch;
 mod demo;
 mod eval;
 mod generate;
@@ -56,6 +58,8 @@ enum Command {
     Generate(generate::GenerateArgs),
     /// One image to a textured mesh: generate → reconstruct → texture.
     Run(run::RunArgs),
+    /// Many objects: a manifest of images or view folders, one output folder each, resumable, shardable (Slurm, Kubernetes).
+    Batch(batch::BatchArgs),
 }
 
 fn main() -> ExitCode {
@@ -70,6 +74,7 @@ fn main() -> ExitCode {
         Command::Prepare(args) => prepare::run(&args),
         Command::Generate(args) => generate::run(&args),
         Command::Run(args) => run::run(&args),
+        Command::Batch(args) => batch::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

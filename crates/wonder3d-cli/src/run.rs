@@ -49,7 +49,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
     check_outputs(&args.out, args.report.as_deref(), args.views.as_deref())?;
     TextureOptions::default().with_size(args.texture_size).validate()?;
     // Read and prepare the image before loading the weights: a refused photo fails fast.
-    let prepared = wonder3d::prepare_image(&args.image, &args.model.prepare_options()?)?;
+    let prepared = wonder3d::prepare_image(&args.image, &args.model.sampling.prepare_options()?)?;
     if !args.quiet {
         eprintln!("{}", crate::prepare::describe(&args.image, &prepared));
     }
@@ -59,12 +59,12 @@ pub fn run(args: &RunArgs) -> Result<()> {
     let pipeline = Pipeline::new()
         .with_preset(args.preset.into())
         .with_texture_size(args.texture_size)
-        .with_model(generate::load(&args.model)?);
+        .with_model(generate::load(&args.model.weights, &args.model.sampling)?);
     let output = pipeline.from_image(&rgba, &mut progress::follow(&bar))?;
     bar.finish_and_clear();
     output.save(&args.out)?;
     if let (Some(dir), Some(input)) = (&args.views, &output.input) {
-        generate::save_generated(&wonder3d::Generated::new(output.views.clone(), input.clone()), dir)?;
+        wonder3d::Generated::new(output.views.clone(), input.clone()).save(dir)?;
     }
     if let Some(path) = &args.report {
         let json = output.report_json()?;

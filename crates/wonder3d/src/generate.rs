@@ -8,6 +8,7 @@ use w3d_diffusion::{Device, MultiViewPipeline, SampleOptions, prepare_input};
 use w3d_photo::PrepareOptions;
 
 use crate::pipeline::{Progress, Stage};
+use crate::sheet::{SheetRow, contact_sheet, normal_picture};
 use crate::{Image, Result, ViewSet};
 
 /// The views a [`Generator`] made of one image.
@@ -26,6 +27,27 @@ impl Generated {
     /// Views and the conditioning image they were generated from.
     pub fn new(views: ViewSet, input: Image) -> Generated {
         Generated { views, input }
+    }
+
+    /// Writes the view set (the `wonder3d render` layout), `input.png` (what the model saw)
+    /// and `views.png` (a labelled contact sheet of the colour and normal views) into the
+    /// folder `dir`, all at once ([`ViewSet::save_with`]: a failure leaves `dir` as it was;
+    /// `dir` must pass [`ViewSet::check_output_dir`]).
+    pub fn save(&self, dir: impl AsRef<Path>) -> Result<()> {
+        let mut colours = SheetRow { label: "colour".into(), images: Vec::new() };
+        let mut normals = SheetRow { label: "normal".into(), images: Vec::new() };
+        for v in self.views.views() {
+            if let Some(c) = &v.colour {
+                colours.images.push(c.with_alpha(&v.mask)?);
+            }
+            normals.images.push(normal_picture(&v.normal, &v.mask)?);
+        }
+        let names: Vec<&str> = self.views.rig().views.iter().map(|v| v.name.as_str()).collect();
+        let sheet = contact_sheet(&names, &[colours, normals])?;
+        self.views.save_with(dir, |staging: &Path| {
+            self.input.write_png(staging.join("input.png"))?;
+            sheet.write_png(staging.join("views.png"))
+        })
     }
 }
 
@@ -87,6 +109,17 @@ impl Generator {
     /// enough). Then preprocessing (crop, 75 % framing on white), CLIP and VAE conditions,
     /// guided sampling (one [`Stage::Denoise`] event per step), decoding.
     pub fn generate(&self, image: &Image, progress: &mut dyn FnMut(Progress)) -> Result<Generated> {
+        self.generate_with(image, &self.options, progress)
+    }
+
+    /// [`Generator::generate`] with other sampling options for this one image (a batch's
+    /// per-item seed or step count) without reloading or cloning the model.
+    pub fn generate_with(
+        &self,
+        image: &Image,
+        options: &SampleOptions,
+        progress: &mut dyn FnMut(Progress),
+    ) -> Result<Generated> {
         progress(Progress::new(Stage::Condition, 0, 1, None));
         let prepared;
         let rgba = if w3d_photo::has_meaningful_alpha(image) && image.channels() == 4 {
@@ -98,12 +131,12 @@ impl Generator {
         let input = prepare_input(rgba, self.pipeline.image_size() as u32)?;
         let cond = self.pipeline.condition(&input, &self.device)?;
         progress(Progress::new(Stage::Condition, 1, 1, None));
-        let noise = self.pipeline.initial_noise(self.options.seed, &self.device);
-        let latents = self.pipeline.sample_from(noise, &cond, &self.options, &mut |done, total| {
+        let noise = self.pipeline.initial_noise(options.seed, &self.device);
+        let latents = self.pipeline.sample_from(noise, &cond, options, &mut |done, total| {
             progress(Progress::new(Stage::Denoise, done, total, None))
         })?;
         progress(Progress::new(Stage::Decode, 0, 1, None));
-        let views = self.pipeline.decode(latents, self.options.camera)?.to_view_set()?;
+        let views = self.pipeline.decode(latents, options.camera)?.to_view_set()?;
         progress(Progress::new(Stage::Decode, 1, 1, None));
         Ok(Generated { views, input })
     }

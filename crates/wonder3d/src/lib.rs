@@ -42,6 +42,7 @@
 //! # Ok::<(), wonder3d::Error>(())
 //! ```
 
+pub mod batch;
 pub mod demo;
 #[cfg(feature = "diffusion")]
 mod generate;

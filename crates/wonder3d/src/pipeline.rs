@@ -455,14 +455,26 @@ impl Pipeline {
         })?;
         let start = Instant::now();
         let generated = model.generate(image, progress)?;
+        self.from_generated(generated, model.options(), start.elapsed().as_secs_f64(), progress)
+    }
+
+    /// Mesh and texture from views that `options` generated in `seconds` (the report records
+    /// the settings).
+    pub(crate) fn from_generated(
+        &self,
+        generated: crate::Generated,
+        options: &crate::SampleOptions,
+        seconds: f64,
+        progress: &mut dyn FnMut(Progress),
+    ) -> Result<Output> {
         let generation = GenerationReport {
-            sampler: model.options().sampler.name().to_string(),
-            steps: model.options().steps,
-            guidance: model.options().guidance,
-            seed: model.options().seed,
+            sampler: options.sampler.name().to_string(),
+            steps: options.steps,
+            guidance: options.guidance,
+            seed: options.seed,
             rig: generated.views.rig().name.clone(),
         };
-        self.finish(generated.views, Some(generated.input), Some(generation), start.elapsed().as_secs_f64(), progress)
+        self.finish(generated.views, Some(generated.input), Some(generation), seconds, progress)
     }
 }
 

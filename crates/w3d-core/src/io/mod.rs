@@ -97,6 +97,61 @@ pub fn write_atomic_all(files: &[(&Path, &[u8])]) -> Result<()> {
     Ok(())
 }
 
+/// Writes a folder atomically: `fill` writes the folder's files into a fresh staging folder
+/// beside `dir` (`.<name>.partial-<pid>-<n>`), which then replaces `dir` as a whole (an
+/// existing `dir` is moved aside first and deleted only once the new one is in place). On
+/// any error the staging folder is removed and `dir` is left as it was, so a reader never
+/// sees a folder mixing two writes. The caller decides whether `dir` may be replaced.
+pub fn write_dir_atomic(dir: impl AsRef<Path>, fill: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    let dir = dir.as_ref();
+    let staging = sibling(dir, "partial")?;
+    let written = std::fs::create_dir(&staging).map_err(|e| Error::io(&staging, e)).and_then(|()| fill(&staging));
+    if let Err(e) = written {
+        let _ = std::fs::remove_dir_all(&staging);
+        return Err(e);
+    }
+    replace_dir(&staging, dir)
+}
+
+/// A path beside `dir` for a staging or backup folder: `.<name>.<what>-<pid>-<n>`.
+fn sibling(dir: &Path, what: &str) -> Result<PathBuf> {
+    let name = dir
+        .file_name()
+        .ok_or_else(|| Error::invalid(format!("output folder {}", dir.display()), "a folder name"))?
+        .to_string_lossy()
+        .into_owned();
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.subsec_nanos());
+    Ok(dir.with_file_name(format!(".{name}.{what}-{}-{nanos}", std::process::id())))
+}
+
+/// Moves the finished folder `staging` to `dir`, replacing an existing `dir` (moved aside
+/// first and deleted only once `staging` is in place; put back if the move fails).
+fn replace_dir(staging: &Path, dir: &Path) -> Result<()> {
+    let fail = |e: std::io::Error| {
+        let _ = std::fs::remove_dir_all(staging);
+        Error::io(dir, e)
+    };
+    if !dir.exists() {
+        return std::fs::rename(staging, dir).map_err(fail);
+    }
+    let old = sibling(dir, "old")?;
+    std::fs::rename(dir, &old).map_err(fail)?;
+    if let Err(e) = std::fs::rename(staging, dir) {
+        let _ = std::fs::rename(&old, dir);
+        return Err(fail(e));
+    }
+    std::fs::remove_dir_all(&old).map_err(|e| Error::io(&old, e))
+}
+
+/// The 64-bit FNV-1a hash of `bytes` as 16 lower-case hex digits: the content check that
+/// view-set manifests (`cameras.json`) and batch item records store beside file sizes. Not
+/// cryptographic; it catches files from another run or a torn write, not tampering.
+pub fn fnv1a64(bytes: &[u8]) -> String {
+    let hash =
+        bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3));
+    format!("{hash:016x}")
+}
+
 /// Writes a file atomically: `write` fills a buffered temporary file beside `path`,
 /// which is then flushed and renamed onto `path`. On any error the temporary file is
 /// removed and `path` is left untouched.

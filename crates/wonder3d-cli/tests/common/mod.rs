@@ -1,0 +1,33 @@
+//! Helpers shared by the CLI's integration tests.
+#![allow(dead_code)]
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use wonder3d::Image;
+
+/// Runs the `wonder3d` binary with `args`.
+pub fn wonder3d(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_wonder3d")).args(args).output().unwrap()
+}
+
+/// The tiny random-weight model directory (real Wonder3D key names and layout, 32² images).
+pub fn tiny_weights() -> String {
+    let dir = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../w3d-diffusion/tests/fixtures/wonder3d_tiny");
+    dir.to_str().unwrap().to_string()
+}
+
+/// An RGBA PNG: an opaque disc shaded left to right on a transparent background.
+pub fn write_input(path: &Path) {
+    let (w, h) = (48u32, 40u32);
+    let mut image = Image::filled(w, h, 4, 0.0).unwrap();
+    for y in 0..h {
+        for x in 0..w {
+            let (dx, dy) = (x as f32 - 24.0, y as f32 - 20.0);
+            if dx * dx + dy * dy < 15.0 * 15.0 {
+                image.pixel_mut(x, y).copy_from_slice(&[0.3 + x as f32 / 96.0, 0.5, 0.7, 1.0]);
+            }
+        }
+    }
+    image.write_png(path).unwrap();
+}
