@@ -676,19 +676,17 @@ impl Batch {
         check_out_folder(&options.out)?;
         let mine: Vec<&Item> =
             manifest.items.iter().enumerate().filter(|(i, _)| options.shard.owns(*i)).map(|(_, item)| item).collect();
-        if !with_model {
-            if let Some(item) = mine.iter().find(|i| i.kind == InputKind::Image) {
-                let images = mine.iter().filter(|i| i.kind == InputKind::Image).count();
-                return Err(Error::invalid(
-                    "model",
-                    format!(
-                        "a model for the {images} image item(s) of this shard (first: line {}, {}): pass --weights DIR \
+        if !with_model && let Some(item) = mine.iter().find(|i| i.kind == InputKind::Image) {
+            let images = mine.iter().filter(|i| i.kind == InputKind::Image).count();
+            return Err(Error::invalid(
+                "model",
+                format!(
+                    "a model for the {images} image item(s) of this shard (first: line {}, {}): pass --weights DIR \
                          (docs/weights.md), or list view-set folders only",
-                        item.line,
-                        item.input.display()
-                    ),
-                ));
-            }
+                    item.line,
+                    item.input.display()
+                ),
+            ));
         }
         if !options.resume {
             let report = options.report_path();
@@ -863,7 +861,7 @@ impl Batch {
                 let views = ViewSet::load(&item.input)?;
                 (pipeline.from_views(&views, progress)?, None)
             }
-            InputKind::Image => self.from_image(&pipeline, item, progress)?,
+            InputKind::Image => self.generate_and_extract(&pipeline, item, progress)?,
         };
         if output.mesh.positions().iter().flatten().any(|c| !c.is_finite()) {
             return Err(Error::invalid("mesh", "finite vertex positions (the reconstruction produced NaN)"));
@@ -885,7 +883,7 @@ impl Batch {
     /// Generates the views of an image item with the batch's model and runs the pipeline on
     /// them; the generated views come back when they are to be kept.
     #[cfg(feature = "diffusion")]
-    fn from_image(
+    fn generate_and_extract(
         &self,
         pipeline: &Pipeline,
         item: &Item,
@@ -897,7 +895,7 @@ impl Batch {
         let (generated, sample) = {
             // Generation uses every core; one item generates at a time while others reconstruct.
             let model = model.lock().unwrap_or_else(|e| e.into_inner());
-            let mut sample = model.options().clone();
+            let mut sample = *model.options();
             let o = &item.options;
             sample.seed = o.seed.unwrap_or(sample.seed);
             sample.steps = o.steps.unwrap_or(sample.steps);
@@ -912,12 +910,12 @@ impl Batch {
             (generated, sample)
         };
         let keep = self.options.keep_views.then(|| generated.clone());
-        let output = pipeline.from_generated(generated, &sample, start.elapsed().as_secs_f64(), progress)?;
+        let output = pipeline.extract_generated(generated, &sample, start.elapsed().as_secs_f64(), progress)?;
         Ok((output, keep))
     }
 
     #[cfg(not(feature = "diffusion"))]
-    fn from_image(
+    fn generate_and_extract(
         &self,
         _: &Pipeline,
         _: &Item,

@@ -455,12 +455,12 @@ impl Pipeline {
         })?;
         let start = Instant::now();
         let generated = model.generate(image, progress)?;
-        self.from_generated(generated, model.options(), start.elapsed().as_secs_f64(), progress)
+        self.extract_generated(generated, model.options(), start.elapsed().as_secs_f64(), progress)
     }
 
     /// Mesh and texture from views that `options` generated in `seconds` (the report records
     /// the settings).
-    pub(crate) fn from_generated(
+    pub(crate) fn extract_generated(
         &self,
         generated: crate::Generated,
         options: &crate::SampleOptions,
