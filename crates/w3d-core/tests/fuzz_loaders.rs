@@ -60,16 +60,9 @@ fn check_image(image: &Image, finite: bool) {
     assert!(!finite || image.data().iter().all(|v| v.is_finite()));
 }
 
-/// Writes `bytes` as `name` in a fresh folder and runs `load` on it within the time bound.
+/// Writes `bytes` as `name` in a fresh folder and runs `load` on it within [`TIME_BOUND`].
 fn timed<T>(name: &str, bytes: &[u8], load: impl FnOnce(&Path) -> T) -> T {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join(name);
-    std::fs::write(&path, bytes).unwrap();
-    let start = Instant::now();
-    let result = load(&path);
-    let elapsed = start.elapsed();
-    assert!(elapsed < TIME_BOUND, "{name} ({} bytes) took {elapsed:?}", bytes.len());
-    result
+    mutate::timed(name, bytes, TIME_BOUND, load)
 }
 
 fn fuzz_mesh(name: &str, seed: &[u8], mutations: &[Mutation]) {

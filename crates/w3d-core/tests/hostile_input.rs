@@ -380,3 +380,24 @@ fn exr_headers_claiming_billions_of_pixels_are_refused_before_decoding() {
     let msg = ViewSet::load(&out).unwrap_err().to_string();
     assert!(msg.contains("normal_front.exr") && msg.contains("data window"), "{msg}");
 }
+
+/// Crashes cargo-fuzz found in the glTF crate (`fuzz/`, docs/robustness.md): a damaged key
+/// (`"ac*essors"`, `"scenesors"`) makes the glTF crate skip the accessors without reading
+/// them, and its validation then indexes an accessor that does not exist. The documents are
+/// refused by our own checks, with a message about the document, before the crate sees them
+/// (not by the catch-all for a panic inside it).
+#[test]
+fn gltf_documents_hiding_their_accessors_are_refused_before_the_reader() {
+    let data = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/fuzz");
+    for (name, as_name) in [
+        ("glb_ignored_key_hides_invalid_utf8.glb", "a.glb"),
+        ("gltf_crash_2.gltf", "b.gltf"),
+        ("glb_ignored_key_hides_invalid_utf8.glb", "c.gltf"),
+    ] {
+        let dir = tempfile::tempdir().unwrap();
+        let path = write(dir.path(), as_name, &std::fs::read(data.join(name)).unwrap());
+        let message = load_error(&path);
+        assert!(!message.contains("failed on this one"), "{name}: {message}");
+        assert!(message.contains("accessor") || message.contains("JSON"), "{name}: {message}");
+    }
+}

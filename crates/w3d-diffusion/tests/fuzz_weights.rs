@@ -31,16 +31,9 @@ fn config() -> ProptestConfig {
 /// parameters) may take.
 const TIME_BOUND: Duration = Duration::from_secs(5);
 
-/// Writes `bytes` as `name` in a fresh folder and runs `load` on it within the time bound.
+/// Writes `bytes` as `name` in a fresh folder and runs `load` on it within [`TIME_BOUND`].
 fn timed<T>(name: &str, bytes: &[u8], load: impl FnOnce(&Path) -> T) -> T {
-    let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join(name);
-    std::fs::write(&path, bytes).unwrap();
-    let start = Instant::now();
-    let result = load(&path);
-    let elapsed = start.elapsed();
-    assert!(elapsed < TIME_BOUND, "{name} ({} bytes) took {elapsed:?}", bytes.len());
-    result
+    mutate::timed(name, bytes, TIME_BOUND, load)
 }
 
 fn seed(name: &str) -> Vec<u8> {

@@ -72,9 +72,12 @@ fn import(path: &Path, bytes: &[u8], glb: bool, base: Option<&Path>) -> Result<M
 /// Checks the references of a glTF JSON document that the glTF crate follows without
 /// checking (and panics on): every primitive attribute and index accessor must exist,
 /// and every image must have a `uri` or a `bufferView` (with a `mimeType`) that exists.
-/// Malformed JSON is left to the reader, which reports it.
+/// The whole document must be valid JSON in UTF-8: the glTF crate skips the values of
+/// unknown keys without checking them, so a damaged key (`"ac*essors"`) would hide its
+/// damaged contents from the reader and leave the references to it dangling.
 fn check_json_references(path: &Path, json: &[u8]) -> Result<()> {
-    let Ok(root) = serde_json::from_slice::<serde_json::Value>(json) else { return Ok(()) };
+    let root = serde_json::from_slice::<serde_json::Value>(json)
+        .map_err(|e| Error::format(path, "glTF JSON", format!("valid JSON in UTF-8 ({e})")))?;
     let count = |key: &str| root.get(key).and_then(|v| v.as_array()).map_or(0, Vec::len);
     let (accessors, views) = (count("accessors"), count("bufferViews"));
     let index_below = |v: &serde_json::Value, n: usize| v.as_u64().is_some_and(|i| i < n as u64);

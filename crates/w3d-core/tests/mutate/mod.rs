@@ -4,7 +4,23 @@
 //! duplicated and removed chunks, drawn by proptest.
 #![allow(dead_code)]
 
+use std::path::Path;
+use std::time::{Duration, Instant};
+
 use proptest::prelude::*;
+
+/// Writes `bytes` as `name` in a fresh folder and runs `load` on its path, failing the test
+/// when the load takes `bound` or longer (a loader must not hang on damaged input).
+pub fn timed<T>(name: &str, bytes: &[u8], bound: Duration, load: impl FnOnce(&Path) -> T) -> T {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join(name);
+    std::fs::write(&path, bytes).unwrap();
+    let start = Instant::now();
+    let result = load(&path);
+    let elapsed = start.elapsed();
+    assert!(elapsed < bound, "{name} ({} bytes) took {elapsed:?}", bytes.len());
+    result
+}
 
 /// Interesting things to insert into text and binary formats alike.
 pub const TOKENS: [&[u8]; 20] = [
