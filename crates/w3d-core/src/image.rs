@@ -271,9 +271,12 @@ impl Image {
     }
 
     /// Reads the first RGBA layer of an OpenEXR file as a 4-channel f32 image (missing
-    /// channels read as 0, alpha as 1).
+    /// channels read as 0, alpha as 1). The header's data window is checked first
+    /// ([`crate::io::check_exr_size`]): a file claiming more than 8192² pixels is refused
+    /// before anything of that size is allocated.
     pub fn read_exr(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
+        crate::io::check_exr_size(path)?;
         let image = exr::prelude::read_first_rgba_layer_from_file(
             path,
             |resolution, _| (resolution.width(), vec![0.0f32; resolution.width() * resolution.height() * 4]),

@@ -262,7 +262,6 @@ impl ViewSet {
             let exr_path = dir.join(format!("normal_{name}.exr"));
             let png_path = dir.join(format!("normal_{name}.png"));
             let (normal, alpha) = if exr_path.is_file() {
-                crate::io::check_exr_size(&exr_path)?;
                 let img = Image::read_exr(&exr_path)?;
                 split_rgba(&img, |x| x)
             } else {
@@ -290,7 +289,6 @@ impl ViewSet {
             };
             let depth_path = dir.join(format!("depth_{name}.exr"));
             let depth = if depth_path.is_file() {
-                crate::io::check_exr_size(&depth_path)?;
                 let img = Image::read_exr(&depth_path)?;
                 let d: Vec<f32> = img.data().chunks_exact(4).map(|p| p[0]).collect();
                 Some(Image::new(img.width(), img.height(), 1, d)?)

@@ -2,8 +2,7 @@
 //! GLB, glTF with a data-URI buffer, PNG, EXR, `cameras.json`) are damaged by flipping,
 //! overwriting, truncating, inserting and duplicating bytes, and each loader must return
 //! within a time bound without panicking; an `Ok` result must be valid (indices in range,
-//! finite values, consistent sizes). EXR files are read as `ViewSet::load` reads them: the
-//! header's size is checked first (`io::check_exr_size`).
+//! finite values, consistent sizes). `Image::read_exr` checks the EXR header's size first.
 //!
 //! Each property runs 128 cases by default (the whole file takes a few seconds in
 //! release); `W3D_FUZZ_CASES=20000 cargo test --release -p w3d-core --test fuzz_loaders`
@@ -190,10 +189,7 @@ fn seeds_load() {
     check("s.glb", glb_seed());
     check("s.gltf", gltf_seed());
     check_image(&timed("s.png", &png_seed(), |p| Image::read_png(p)).unwrap(), true);
-    check_image(
-        &timed("s.exr", exr_seed(), |p| w3d_core::io::check_exr_size(p).and_then(|()| Image::read_exr(p))).unwrap(),
-        true,
-    );
+    check_image(&timed("s.exr", exr_seed(), |p| Image::read_exr(p)).unwrap(), true);
     timed("cameras.json", &cameras_seed(), |p| ViewRig::load_json(p)).unwrap();
     assert!(timed("s.gltf", gltf_seed(), |p| load_mesh(p)).unwrap().texture().is_some());
 }
@@ -237,7 +233,7 @@ proptest! {
     #[test]
     fn damaged_exr(m in mutations()) {
         let bytes = apply(exr_seed(), &m);
-        if let Ok(image) = timed("m.exr", &bytes, |p| w3d_core::io::check_exr_size(p).and_then(|()| Image::read_exr(p))) {
+        if let Ok(image) = timed("m.exr", &bytes, |p| Image::read_exr(p)) {
             check_image(&image, false);
         }
     }

@@ -368,7 +368,9 @@ fn exr_headers_claiming_billions_of_pixels_are_refused_before_decoding() {
     let huge = write(dir.path(), "huge.exr", &bytes);
     let msg = message_for(w3d_core::io::check_exr_size(&huge).unwrap_err(), &huge);
     assert!(msg.contains("data window") && msg.contains("60000×60000"), "{msg}");
-    // The view-set loader checks it before decoding.
+    // `Image::read_exr` checks it before decoding, and so the view-set loader.
+    let msg = message_for(Image::read_exr(&huge).unwrap_err(), &huge);
+    assert!(msg.contains("data window"), "{msg}");
     let rig = ViewRig::wonder3d_ortho();
     let out = dir.path().join("views");
     ViewSet::new(rig.clone(), views(&rig, 4, 0.5)).unwrap().save(&out).unwrap();
