@@ -11,7 +11,8 @@ use w3d_core::{Image, Mesh};
 pub fn file(name: &str, bytes: &[u8]) -> PathBuf {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     let dir = DIR.get_or_init(|| {
-        let base = if std::path::Path::new("/dev/shm").is_dir() { PathBuf::from("/dev/shm") } else { std::env::temp_dir() };
+        let base =
+            if std::path::Path::new("/dev/shm").is_dir() { PathBuf::from("/dev/shm") } else { std::env::temp_dir() };
         let dir = base.join(format!("wonder3d-fuzz-{}", std::process::id()));
         std::fs::create_dir_all(&dir).unwrap();
         dir
