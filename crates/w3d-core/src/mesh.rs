@@ -33,14 +33,15 @@ pub struct Normalization {
 }
 
 impl Normalization {
-    /// Applies the transform to a point.
+    /// Applies the transform to a point (in f64, so coordinates near the f32 range, whose
+    /// differences overflow in f32, still map into the unit cube).
     pub fn apply(&self, p: Vec3) -> Vec3 {
-        (p - self.centre) * self.scale
+        ((p.as_dvec3() - self.centre.as_dvec3()) * f64::from(self.scale)).as_vec3()
     }
 
-    /// Maps a normalised point back to the original frame.
+    /// Maps a normalised point back to the original frame (in f64, like [`Normalization::apply`]).
     pub fn invert(&self, p: Vec3) -> Vec3 {
-        p / self.scale + self.centre
+        (p.as_dvec3() / f64::from(self.scale) + self.centre.as_dvec3()).as_vec3()
     }
 }
 
@@ -324,9 +325,11 @@ impl Mesh {
     /// A mesh whose bbox is a single point is only translated (scale 1).
     pub fn normalize_unit_cube(&mut self) -> Normalization {
         let (lo, hi) = self.bbox();
-        let centre = (lo + hi) * 0.5;
+        // In f64: for coordinates near ±f32::MAX the side and the centre overflow in f32.
+        let (lo, hi) = (lo.as_dvec3(), hi.as_dvec3());
+        let centre = ((lo + hi) * 0.5).as_vec3();
         let side = (hi - lo).max_element();
-        let scale = if side > 0.0 { 1.0 / side } else { 1.0 };
+        let scale = if side > 0.0 { (1.0 / side) as f32 } else { 1.0 };
         let t = Normalization { centre, scale };
         for p in &mut self.positions {
             *p = t.apply(Vec3::from(*p)).to_array();

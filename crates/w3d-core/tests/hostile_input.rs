@@ -403,3 +403,19 @@ fn gltf_documents_hiding_their_accessors_are_refused_before_the_reader() {
         assert!(message.contains("accessor") || message.contains("JSON"), "{name}: {message}");
     }
 }
+
+/// Coordinates near the f32 range (±3·10³⁸): the bounding box's side overflows in f32, and
+/// normalising once scaled every vertex to 0 (empty views, then an empty-mask error). The
+/// transform is computed in f64 and the mesh lands in the unit cube like any other.
+#[test]
+fn meshes_at_the_edge_of_the_f32_range_normalise_into_the_unit_cube() {
+    let big = 3.0e38f32;
+    let p = vec![[-big, -big, -big], [big, -big, -big], [-big, big, -big], [-big, -big, big]];
+    let mut mesh = Mesh::new(p, vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]]).unwrap();
+    let t = mesh.normalize_unit_cube();
+    let (lo, hi) = mesh.bbox();
+    assert!((lo - glam::Vec3::splat(-0.5)).abs().max_element() < 1e-5, "{lo}");
+    assert!((hi - glam::Vec3::splat(0.5)).abs().max_element() < 1e-5, "{hi}");
+    let back = t.invert(glam::Vec3::from(mesh.positions()[1]));
+    assert!((back.x / big - 1.0).abs() < 1e-5, "{back}");
+}
