@@ -6,7 +6,7 @@
 //!   crate `w3d-SUITE` (e.g. `raster`, `remesh`, `eval`), then writes the medians of the
 //!   benchmarks it ran to `target/bench/SUITE.json` and prints them as a markdown table for
 //!   `docs/benchmarks.md`.
-//! - `cargo xtask bench recon [-- --meshes a,b --cases ortho,persp,presets,concave,stability]`:
+//! - `cargo xtask bench recon [-- --meshes a,b --cases ortho,persp,presets,concave,stability,robustness]`:
 //!   the reconstruction accuracy harness (oracle views of `../shared/data/meshes`), writing
 //!   `target/bench/recon.json` and, on a full run, `docs/accuracy.md`.
 //! - `cargo xtask chart`: `docs/speed_accuracy.svg` from `target/bench/recon.json`.
@@ -46,6 +46,7 @@ use clap::{Parser, Subcommand};
 
 mod chart;
 mod recon;
+mod robust;
 
 #[derive(Parser)]
 #[command(about = "wonder3d-rs project automation")]

@@ -148,6 +148,57 @@ impl ViewSet {
     pub fn into_parts(self) -> (ViewRig, Vec<ViewImages>) {
         (self.rig, self.views)
     }
+
+    /// The views named in `names` (any order, each once), with their cameras, as a set of
+    /// their own in rig order: a view set with a view missing, e.g. one a generator got
+    /// wrong. The rig keeps its name; its views are the ones kept. Fails on an empty
+    /// selection, a name the rig does not have, or a name given twice.
+    ///
+    /// ```
+    /// use w3d_core::{Image, ViewImages, ViewRig, ViewSet};
+    ///
+    /// let rig = ViewRig::wonder3d_ortho();
+    /// let views = rig
+    ///     .views
+    ///     .iter()
+    ///     .map(|v| ViewImages {
+    ///         name: v.name.clone(),
+    ///         normal: Image::filled(4, 4, 3, 0.0).unwrap(),
+    ///         colour: None,
+    ///         mask: Image::filled(4, 4, 1, 0.0).unwrap(),
+    ///         depth: None,
+    ///     })
+    ///     .collect();
+    /// let set = ViewSet::new(rig, views)?;
+    /// let five = set.subset(["front", "front_right", "right", "back", "front_left"])?;
+    /// assert_eq!(five.len(), 5);
+    /// assert!(five.iter().all(|(rv, v)| rv.name == v.name && v.name != "left"));
+    /// assert!(set.subset(["top"]).is_err());
+    /// # Ok::<(), w3d_core::Error>(())
+    /// ```
+    pub fn subset<S: AsRef<str>>(&self, names: impl IntoIterator<Item = S>) -> Result<ViewSet> {
+        let mut keep = vec![false; self.views.len()];
+        for name in names {
+            let name = name.as_ref();
+            let Some(i) = self.rig.views.iter().position(|v| v.name == name) else {
+                let known: Vec<&str> = self.rig.views.iter().map(|v| v.name.as_str()).collect();
+                return Err(Error::invalid("views", format!("one of the rig's views {known:?}, got {name:?}")));
+            };
+            if keep[i] {
+                return Err(Error::invalid("views", format!("each view once, {name:?} is named twice")));
+            }
+            keep[i] = true;
+        }
+        if !keep.contains(&true) {
+            return Err(Error::invalid("views", "at least one view to keep"));
+        }
+        let rig = ViewRig {
+            name: self.rig.name.clone(),
+            views: self.rig.views.iter().zip(&keep).filter(|&(_, &k)| k).map(|(v, _)| v.clone()).collect(),
+        };
+        let views = self.views.iter().zip(&keep).filter(|&(_, &k)| k).map(|(v, _)| v.clone()).collect();
+        ViewSet::new(rig, views)
+    }
 }
 
 /// View-set folders (feature `io`).

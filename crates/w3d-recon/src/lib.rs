@@ -11,8 +11,10 @@
 //!    backward passes and [`vertex_normals_backward`], continuous remeshing (`w3d-remesh`)
 //!    after every step, and density bounded below by the views' pixel footprint — run a
 //!    second time from the [`visual_hull_mesh`] when the Poisson start misses a silhouette
-//!    (a handle pointing at the camera), keeping the lower final loss;
-//! 3. [`untangle`]: small local moves (separation, then smoothing) until no triangles cross;
+//!    (a handle pointing at the camera), keeping the hull result only when its loss is
+//!    clearly lower ([`InitOptions::hull_alternative_margin`]);
+//! 3. [`untangle`]: small local moves (separation, then smoothing) until no triangles cross
+//!    (the coarse stage runs again with another remesher seed in the rare case it cannot);
 //! 4. [`polish`]: the coarse loss again on the vertices untangling moved, at fixed
 //!    topology, with every move that would make triangles cross undone.
 //!
@@ -48,7 +50,7 @@ mod untangle;
 
 pub use coarse::{CoarseOptions, CoarseReport, reconstruct_coarse, silhouette_sphere, view_loss};
 pub use init::{InitChoice, InitOptions, InitReport, initial_mesh, visual_hull_mesh};
-pub use pipeline::{Preset, Progress, ReconOptions, ReconReport, Stage, StageTiming, reconstruct};
+pub use pipeline::{COARSE_RESEEDS, Preset, Progress, ReconOptions, ReconReport, Stage, StageTiming, reconstruct};
 
 pub use polish::{PolishReport, polish};
 pub use untangle::{UntangleReport, untangle, untangle_positions};

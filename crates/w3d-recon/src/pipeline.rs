@@ -207,6 +207,14 @@ pub struct ReconReport {
     pub polish: PolishReport,
     /// Per-stage wall-clock seconds.
     pub stages: Vec<StageTiming>,
+    /// Times the coarse stage ran again because [`untangle`] left crossings (at most
+    /// [`COARSE_RESEEDS`]): with the next remesher seed, from the second rerun on with the
+    /// remesher's repairs on. 0 almost always on consistent views, and always 0 when
+    /// [`ReconOptions::untangle_rounds`] is 0.
+    pub coarse_reseeds: usize,
+    /// Whether the coarse run kept is one with the remesher's repairs on (see
+    /// [`ReconReport::coarse_reseeds`]).
+    pub remesh_repairs: bool,
     /// Triangles of the returned mesh.
     pub triangles: usize,
     /// Total wall-clock seconds.
@@ -218,9 +226,14 @@ pub struct ReconReport {
 /// [`reconstruct_coarse`], then [`untangle`] and [`polish`] (on the vertices untangling moved
 /// and two rings around them). When the Poisson start misses a silhouette (IoU below
 /// [`InitOptions::hull_alternative_iou`]), the coarse stage also runs from
-/// [`crate::visual_hull_mesh`] and the result with the lower final loss is kept (the report says
-/// which, with both losses). `progress` receives [`Progress`] events (pass `&mut |_| {}` to
-/// ignore them).
+/// [`crate::visual_hull_mesh`] and the hull result is kept when its settled loss (the mean of
+/// the last 10 % of steps) is lower than the Poisson result's by more than
+/// [`InitOptions::hull_alternative_margin`] (the report says which, with both losses). When
+/// [`untangle`] leaves crossings, the coarse stage runs again from the same start with the
+/// next remesher seeds, all but the first rerun with the remesher's repairs on (at most
+/// [`COARSE_RESEEDS`] times; [`ReconReport::coarse_reseeds`]), and the run with the fewest
+/// crossings left is kept; a rerun reports its steps to `progress` as a coarse stage of its own. `progress` receives [`Progress`] events (pass
+/// `&mut |_| {}` to ignore them).
 pub fn reconstruct(
     views: &ViewSet,
     options: &ReconOptions,
@@ -239,7 +252,7 @@ pub fn reconstruct(
     }
     progress(Progress { stage: Stage::Init, done: 0, total: 1, loss: None });
     // A Poisson start that misses a silhouette badly may sit in the wrong basin: also
-    // optimise from the visual hull and keep the lower final loss.
+    // optimise from the visual hull and keep the hull result if its loss is clearly lower.
     let (init, mut init_report, alternative) = start_meshes(views, &options.init, true)?;
     progress(Progress { stage: Stage::Init, done: 1, total: 1, loss: None });
     let runs = 1 + usize::from(alternative.is_some());
@@ -247,35 +260,66 @@ pub fn reconstruct(
     let (mut mesh, mut coarse_report) = reconstruct_coarse(views, &init, &options.coarse, &mut |done, _, loss| {
         progress(Progress { stage: Stage::Coarse, done, total, loss: Some(loss) })
     })?;
+    // The start of the result kept, for a rerun with another seed (below).
+    let mut start_mesh = init;
     if let Some(hull) = alternative {
         let offset = options.coarse.steps;
         let (hull_mesh, hull_report) = reconstruct_coarse(views, &hull, &options.coarse, &mut |done, _, loss| {
             progress(Progress { stage: Stage::Coarse, done: offset + done, total, loss: Some(loss) })
         })?;
-        let final_loss = |r: &CoarseReport| r.losses.last().copied().unwrap_or(f32::INFINITY);
-        let (poisson_loss, hull_loss) = (final_loss(&coarse_report), final_loss(&hull_report));
+        let (poisson_loss, hull_loss) = (settled_loss(&coarse_report), settled_loss(&hull_report));
+        let margin = options.init.hull_alternative_margin;
         let seconds = coarse_report.seconds + hull_report.seconds;
-        let kept = if hull_loss < poisson_loss {
+        let kept = if hull_loss < (1.0 - margin) * poisson_loss {
             mesh = hull_mesh;
             coarse_report = hull_report;
             init_report.choice = InitChoice::VisualHull;
             init_report.triangles = hull.triangle_count();
+            start_mesh = hull;
             "visual hull"
         } else {
             "Poisson"
         };
         coarse_report.seconds = seconds;
         init_report.reason = format!(
-            "{}; silhouette IoU below {}: also optimised from the visual hull (final loss {hull_loss:.5} vs \
-             Poisson {poisson_loss:.5}): kept the {kept} result",
-            init_report.reason, options.init.hull_alternative_iou
+            "{}; silhouette IoU below {}: also optimised from the visual hull (settled loss, the mean of the last \
+             10 % of steps, {hull_loss:.5} vs Poisson {poisson_loss:.5}; the hull needs {:.0} % less): kept the \
+             {kept} result",
+            init_report.reason,
+            options.init.hull_alternative_iou,
+            100.0 * margin
         );
     }
     let t = Instant::now();
     progress(Progress { stage: Stage::Untangle, done: 0, total: 1, loss: None });
-    let (untangled, untangle_report) = untangle(&mesh, options.untangle_rounds)?;
+    let (mut untangled, mut untangle_report) = untangle(&mesh, options.untangle_rounds)?;
+    // Untangling that ends with crossings left (rare on consistent views: 1 of 154 coarse
+    // meshes in the measurements of `untangle`'s docs, a chaotic outcome of the remesher's
+    // choices) gets the coarse stage again from the same start: with the next remesher seed,
+    // then with the remesher's repairs on and the seeds after (views that contradict each
+    // other crumple the surface into patches of sub-floor triangles that untangling cannot
+    // always clear; the repairs leave far fewer, at some cost in detail). The run with the
+    // fewest crossings left is kept.
+    let (mut reseeds, mut reseed_seconds, mut repaired) = (0, 0.0, false);
+    while untangle_report.after > 0 && options.untangle_rounds > 0 && reseeds < COARSE_RESEEDS {
+        reseeds += 1;
+        // The first rerun as before with the next seed; the others with the repairs on.
+        let coarse =
+            options.coarse.with_seed(options.coarse.seed.wrapping_add(reseeds as u64)).with_remesh_repairs(reseeds > 1);
+        let (again, again_report) = reconstruct_coarse(views, &start_mesh, &coarse, &mut |done, total, loss| {
+            progress(Progress { stage: Stage::Coarse, done, total, loss: Some(loss) })
+        })?;
+        let (again_untangled, again_untangle) = untangle(&again, options.untangle_rounds)?;
+        reseed_seconds += again_report.seconds;
+        let seconds = coarse_report.seconds + again_report.seconds;
+        if again_untangle.after < untangle_report.after {
+            (mesh, coarse_report, untangled, untangle_report) = (again, again_report, again_untangled, again_untangle);
+            repaired = coarse.remesh_repairs;
+        }
+        coarse_report.seconds = seconds;
+    }
     progress(Progress { stage: Stage::Untangle, done: 1, total: 1, loss: None });
-    let untangle_seconds = t.elapsed().as_secs_f64();
+    let untangle_seconds = t.elapsed().as_secs_f64() - reseed_seconds;
     progress(Progress { stage: Stage::Polish, done: 0, total: 1, loss: None });
     let free = grow_rings(&untangled, moved_vertices(&mesh, &untangled), POLISH_RINGS);
     let (mesh, polish_report) = polish(views, &untangled, &free, &options.coarse, options.polish_steps)?;
@@ -291,11 +335,31 @@ pub fn reconstruct(
         coarse: coarse_report,
         untangle: untangle_report,
         polish: polish_report,
+        coarse_reseeds: reseeds,
+        remesh_repairs: repaired,
         stages,
         triangles: mesh.triangle_count(),
         seconds: start.elapsed().as_secs_f64(),
     };
     Ok((mesh, report))
+}
+
+/// Most reruns of the coarse stage when [`untangle`] leaves crossings (see [`reconstruct`]):
+/// each with the next remesher seed, all but the first with
+/// [`CoarseOptions::remesh_repairs`] on.
+pub const COARSE_RESEEDS: usize = 3;
+
+/// The loss a coarse run settled at: the mean of its last 10 % of steps (at least one).
+/// The last step's loss alone moves by up to ±25 % from step to step as the remesher
+/// splits and collapses (measured on the plane: 0.0398 at the last step, 0.0319 over the
+/// last twelve), too much to choose between two starts by.
+fn settled_loss(report: &CoarseReport) -> f32 {
+    let losses = &report.losses;
+    let k = (losses.len() / 10).max(1).min(losses.len());
+    if k == 0 {
+        return f32::INFINITY;
+    }
+    losses[losses.len() - k..].iter().sum::<f32>() / k as f32
 }
 
 /// Rings of neighbours around the vertices [`untangle`] moved that [`polish`] may move too.
@@ -321,4 +385,23 @@ fn grow_rings(mesh: &Mesh, mut flags: Vec<bool>, rings: usize) -> Vec<bool> {
         flags = grown;
     }
     flags
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn report(losses: Vec<f32>) -> CoarseReport {
+        CoarseReport { losses, triangle_counts: Vec::new(), seconds: 0.0 }
+    }
+
+    /// Two starts are compared by where their losses settled, not by the last step alone.
+    #[test]
+    fn the_settled_loss_is_the_mean_of_the_last_tenth_of_the_steps() {
+        let mut losses = vec![1.0; 18];
+        losses.extend([0.2, 0.4]);
+        assert!((settled_loss(&report(losses)) - 0.3).abs() < 1e-6);
+        assert_eq!(settled_loss(&report(vec![0.5, 0.25])), 0.25);
+        assert_eq!(settled_loss(&report(Vec::new())), f32::INFINITY);
+    }
 }

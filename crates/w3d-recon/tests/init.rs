@@ -116,4 +116,8 @@ fn bad_options_are_rejected() {
     assert!(err.to_string().contains("grid"), "{err}");
     let err = initial_mesh(&views, &InitOptions::default().with_edge_length(0.0)).unwrap_err();
     assert!(err.to_string().contains("edge_length"), "{err}");
+    for margin in [-0.1, 1.0, f32::NAN] {
+        let err = initial_mesh(&views, &InitOptions::default().with_hull_alternative_margin(margin)).unwrap_err();
+        assert!(err.to_string().contains("hull_alternative_margin"), "{err}");
+    }
 }
