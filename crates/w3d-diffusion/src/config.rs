@@ -9,8 +9,8 @@
 
 use std::path::Path;
 
-use serde::Deserialize;
 use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
 use w3d_core::Error;
 
 /// The widest channel count, hidden size or attention width a config may ask for. A config is
@@ -56,7 +56,7 @@ fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T, Error> {
 
 /// A value that is either one number for every block or one number per block (diffusers
 /// accepts both for `attention_head_dim`, `num_attention_heads`, `transformer_layers_per_block`).
-#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 #[serde(untagged)]
 pub enum PerBlock {
     /// The same value for every block.
@@ -103,7 +103,7 @@ fn default_eps5() -> f64 {
 
 /// `UNet2DConditionModel` config (diffusers `unet/config.json`). Channel counts are feature
 /// channels; `sample_size` is the latent side in pixels (image side / 8).
-#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 pub struct UNetConfig {
     /// Latent channels in (4 for SD, 8 for Wonder3D: noisy latent + condition latent).
     #[serde(default = "default_in_out4")]

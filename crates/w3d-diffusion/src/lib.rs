@@ -39,6 +39,7 @@ pub mod config;
 pub mod multiview;
 pub mod nn;
 pub mod scheduler;
+pub mod train;
 pub mod unet;
 pub mod vae;
 pub mod weights;
@@ -59,7 +60,7 @@ pub use scheduler::{
 };
 pub use unet::UNet;
 pub use vae::Vae;
-pub use weights::SafetensorsFile;
+pub use weights::{NamedParam, SafetensorsFile};
 
 /// The default CPU device: Burn's `flex` backend (gemm-crate matmul, rayon threads), measured
 /// faster than `ndarray` on this crate's models (see `docs/benchmarks.md`).

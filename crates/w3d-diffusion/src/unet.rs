@@ -27,6 +27,7 @@
 //!   [`crate::multiview::switcher_labels`]).
 
 use std::path::Path;
+use std::sync::Arc;
 
 use burn::module::Module;
 use burn::tensor::activation::silu;
@@ -38,7 +39,7 @@ use crate::blocks::{
 };
 use crate::config::UNetConfig;
 use crate::nn::{Conv2d, GroupNorm};
-use crate::weights::{ParamSource, SafetensorsFile};
+use crate::weights::{NamedParam, ParamSource, SafetensorsFile};
 
 /// One down level: ResNets (each optionally followed by a transformer) and a down-sampler.
 #[derive(Module, Debug)]
@@ -71,6 +72,10 @@ pub struct UNet {
     conv_out: Conv2d,
     #[module(skip)]
     config: UNetConfig,
+    /// The checkpoint key of every parameter (ids survive `Module::map`, so they stay valid
+    /// for a trained copy of this model).
+    #[module(skip)]
+    names: Arc<Vec<NamedParam>>,
 }
 
 impl UNet {
@@ -80,7 +85,8 @@ impl UNet {
         config.validate()?;
         let mut file = SafetensorsFile::open(weights)?;
         let mut p = ParamSource::from_file(&mut file, rename_legacy_unet_key, device);
-        let unet = Self::build(config, &mut p)?;
+        let mut unet = Self::build(config, &mut p)?;
+        unet.names = Arc::new(p.take_names());
         p.finish()?;
         Ok(unet)
     }
@@ -96,7 +102,33 @@ impl UNet {
     /// `config` with seeded random weights (for shape, speed and memory checks at real sizes).
     pub fn random(config: &UNetConfig, seed: u64, device: &Device) -> Result<Self, Error> {
         config.validate()?;
-        Self::build(config, &mut ParamSource::random(seed, device))
+        let mut p = ParamSource::random(seed, device);
+        let mut unet = Self::build(config, &mut p)?;
+        unet.names = Arc::new(p.take_names());
+        Ok(unet)
+    }
+
+    /// The checkpoint key (diffusers `UNet2DConditionModel` / Wonder3D `UNetMV2DConditionModel`
+    /// names) of every parameter, in build order.
+    pub fn named_parameters(&self) -> &[NamedParam] {
+        &self.names
+    }
+
+    /// Writes `config.json` and `diffusion_pytorch_model.safetensors` (f32, PyTorch layouts,
+    /// the keys of [`UNet::named_parameters`]) into `dir`, the `unet/` folder of a diffusers
+    /// checkpoint that [`UNet::from_dir`] and the authors' code load. Each file is written
+    /// under a temporary name and renamed, so an interrupted save never leaves a truncated
+    /// file under the real name.
+    pub fn save(&self, dir: impl AsRef<Path>) -> Result<(), Error> {
+        let dir = dir.as_ref();
+        let tensors = crate::weights::collect_named(self, &self.names)?;
+        let class = if self.config.num_views.is_some() { "UNetMV2DConditionModel" } else { "UNet2DConditionModel" };
+        let mut config = serde_json::to_value(&self.config)
+            .map_err(|e| Error::invalid("unet config", format!("a serialisable config ({e})")))?;
+        if let Some(map) = config.as_object_mut() {
+            map.insert("_class_name".into(), class.into());
+        }
+        crate::weights::write_checkpoint(dir, "diffusion_pytorch_model.safetensors", &tensors, &config)
     }
 
     /// The config this model was built from.
@@ -208,6 +240,7 @@ impl UNet {
             conv_norm_out,
             conv_out,
             config: c.clone(),
+            names: Arc::default(),
         })
     }
 

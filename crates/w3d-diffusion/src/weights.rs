@@ -5,12 +5,12 @@
 //! plus the largest single tensor. Every requested key is checked for presence and shape, every
 //! file key must be used, and all problems are reported together by name.
 
-use std::collections::{BTreeMap, BTreeSet};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::fs::File;
 use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
-use burn::module::Param;
+use burn::module::{Module, ModuleVisitor, Param, ParamId};
 use burn::tensor::{Device, Tensor, TensorData};
 use safetensors::tensor::{Dtype, Metadata, TensorInfo};
 use w3d_core::Error;
@@ -143,6 +143,20 @@ pub(crate) struct ParamSource<'a> {
     missing: Vec<String>,
     wrong: Vec<String>,
     unreadable: Vec<String>,
+    names: Vec<NamedParam>,
+}
+
+/// Where one parameter of a built model lives in a diffusers / transformers checkpoint: its
+/// key and, for a weight held transposed (`[d_in, d_out]`), the PyTorch shape it is stored in.
+/// Training selects parameters by key (stage presets) and checkpoints are written under them.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NamedParam {
+    /// The parameter's id in the Burn module tree.
+    pub id: ParamId,
+    /// The checkpoint key (e.g. `down_blocks.0.attentions.0.proj_in.weight`).
+    pub key: String,
+    /// `Some(shape)` when the module holds the transpose of the PyTorch `[d_out, …]` layout.
+    pub torch_shape: Option<Vec<usize>>,
 }
 
 impl<'a> ParamSource<'a> {
@@ -156,6 +170,7 @@ impl<'a> ParamSource<'a> {
             missing: Vec::new(),
             wrong: Vec::new(),
             unreadable: Vec::new(),
+            names: Vec::new(),
         }
     }
 
@@ -167,6 +182,7 @@ impl<'a> ParamSource<'a> {
             missing: Vec::new(),
             wrong: Vec::new(),
             unreadable: Vec::new(),
+            names: Vec::new(),
         }
     }
 
@@ -228,7 +244,9 @@ impl<'a> ParamSource<'a> {
             Some(values) => Tensor::from_data(TensorData::new(values, shape), &self.device),
             None => Tensor::zeros([1; D], &self.device),
         };
-        Param::from_tensor(tensor)
+        let param = Param::from_tensor(tensor);
+        self.names.push(NamedParam { id: param.id, key: key.to_string(), torch_shape: None });
+        param
     }
 
     /// A weight stored PyTorch-style as `[d_out, in_shape…]` (a linear layer, or a
@@ -255,7 +273,14 @@ impl<'a> ParamSource<'a> {
             }
             None => Tensor::zeros([1, 1], &self.device),
         };
-        Param::from_tensor(tensor)
+        let param = Param::from_tensor(tensor);
+        self.names.push(NamedParam { id: param.id, key: key.to_string(), torch_shape: Some(shape) });
+        param
+    }
+
+    /// The key of every parameter built so far, in build order.
+    pub(crate) fn take_names(&mut self) -> Vec<NamedParam> {
+        std::mem::take(&mut self.names)
     }
 
     /// Marks file keys matching `ignore` as used (buffers such as CLIP's `position_ids`).
@@ -296,4 +321,94 @@ impl<'a> ParamSource<'a> {
         }
         Err(Error::format(file.path(), "weights", report))
     }
+}
+
+/// Every float parameter of a module by id: `(dims, values)`.
+pub(crate) fn parameter_values<M: Module>(module: &M) -> HashMap<ParamId, (Vec<usize>, Vec<f32>)> {
+    struct Collect(HashMap<ParamId, (Vec<usize>, Vec<f32>)>);
+    impl ModuleVisitor for Collect {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            let tensor = param.val();
+            let dims = tensor.dims().to_vec();
+            // A tensor converts to f32 data of its own element count; anything else would be a
+            // Burn invariant broken, kept visible as an empty entry that `collect_named` reports.
+            let values = tensor.into_data().convert::<f32>().try_to_vec::<f32>().unwrap_or_default();
+            self.0.insert(param.id, (dims, values));
+        }
+    }
+    let mut collect = Collect(HashMap::new());
+    module.visit(&mut collect);
+    collect.0
+}
+
+/// A checkpoint tensor: key, PyTorch shape, f32 values.
+pub(crate) type CheckpointTensor = (String, Vec<usize>, Vec<f32>);
+
+/// The parameters of `module` under their checkpoint keys, in PyTorch layout (transposed
+/// weights turned back to `[d_out, …]`).
+pub(crate) fn collect_named<M: Module>(module: &M, names: &[NamedParam]) -> Result<Vec<CheckpointTensor>, Error> {
+    let mut values = parameter_values(module);
+    let mut out = Vec::with_capacity(names.len());
+    for named in names {
+        let (dims, v) = values
+            .remove(&named.id)
+            .ok_or_else(|| Error::invalid(named.key.clone(), "a parameter of the model being saved"))?;
+        if v.len() != dims.iter().product::<usize>() {
+            return Err(Error::invalid(named.key.clone(), format!("f32 values for shape {dims:?}")));
+        }
+        match &named.torch_shape {
+            Some(shape) => {
+                let [d_in, d_out] = [dims[0], dims[1]];
+                let mut t = vec![0.0f32; v.len()];
+                for i in 0..d_in {
+                    for o in 0..d_out {
+                        t[o * d_in + i] = v[i * d_out + o];
+                    }
+                }
+                out.push((named.key.clone(), shape.clone(), t));
+            }
+            None => out.push((named.key.clone(), dims, v)),
+        }
+    }
+    Ok(out)
+}
+
+/// Writes `config.json` and `weights_file` (f32 safetensors) into `dir` (created if missing),
+/// each under a temporary name first and then renamed.
+pub(crate) fn write_checkpoint(
+    dir: &Path,
+    weights_file: &str,
+    tensors: &[CheckpointTensor],
+    config: &serde_json::Value,
+) -> Result<(), Error> {
+    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
+    let bytes: Vec<(String, Vec<usize>, Vec<u8>)> = tensors
+        .iter()
+        .map(|(k, shape, v)| (k.clone(), shape.clone(), v.iter().flat_map(|x| x.to_le_bytes()).collect()))
+        .collect();
+    let views = bytes
+        .iter()
+        .map(|(k, shape, b)| {
+            safetensors::tensor::TensorView::new(Dtype::F32, shape.clone(), b).map(|view| (k.clone(), view))
+        })
+        .collect::<Result<Vec<_>, _>>()
+        .map_err(|e| Error::invalid("checkpoint", format!("consistent tensor shapes ({e})")))?;
+    let weights = safetensors::tensor::serialize(views, None)
+        .map_err(|e| Error::invalid("checkpoint", format!("a serialisable set of tensors ({e})")))?;
+    let config = serde_json::to_vec_pretty(config)
+        .map_err(|e| Error::invalid("config", format!("a serialisable config ({e})")))?;
+    write_replacing(&dir.join(weights_file), &weights)?;
+    write_replacing(&dir.join("config.json"), &config)
+}
+
+/// Writes `bytes` to `path` through a temporary file in the same folder, then renames it.
+pub(crate) fn write_replacing(path: &Path, bytes: &[u8]) -> Result<(), Error> {
+    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+    let tmp = path.with_file_name(format!(".{name}.partial-{}", std::process::id()));
+    let result = std::fs::write(&tmp, bytes).and_then(|()| std::fs::rename(&tmp, path));
+    if let Err(e) = result {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(Error::io(path, e));
+    }
+    Ok(())
 }

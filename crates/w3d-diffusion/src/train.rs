@@ -1,0 +1,725 @@
+//! Training the multi-view UNet as Wonder3D++ does (`docs/training.md`): the ε-prediction
+//! objective with Min-SNR-γ weighting, condition dropout "as a whole" for classifier-free
+//! guidance, the three stage presets, and AdamW with the class-embedding parameter group,
+//! warm-up, gradient-norm clipping and gradient accumulation — on Burn's autodiff, on any
+//! device.
+//!
+//! Batch layout (as inference, [`crate::multiview`]): `n = domains · objects · views` images,
+//! domain-major, then object, then view. Each group of `views` consecutive images (one object,
+//! one domain) gets one timestep; the noise is independent per image; one condition-dropout
+//! draw per object applies to all its images in every domain.
+//!
+//! ```
+//! use w3d_diffusion::train::{Stage, TrainBatch, TrainOptions, Trainer};
+//! use w3d_diffusion::{SchedulerConfig, Tensor, UNet, UNetConfig, gaussian_noise};
+//!
+//! let device = w3d_diffusion::default_device();
+//! let config = UNetConfig::from_file("tests/fixtures/wonder3d_tiny/unet/config.json").unwrap();
+//! let unet = UNet::random(&config, 1, &device).unwrap();
+//! let options = TrainOptions::for_stage(Stage::CrossDomain).with_warmup_steps(0);
+//! let mut trainer = Trainer::new(unet, SchedulerConfig::stable_diffusion(), options).unwrap();
+//! let device = trainer.device();
+//! // One object, both domains, 6 views of 8×8 latents (already VAE-encoded and scaled).
+//! let batch = TrainBatch {
+//!     latents: gaussian_noise([12, 4, 8, 8], 2, &device),
+//!     condition_latents: gaussian_noise([12, 4, 8, 8], 3, &device),
+//!     image_embeddings: Tensor::ones([12, 1, 16], &device),
+//!     class_labels: Some(Tensor::zeros([12, 14], &device)),
+//!     domains: 2,
+//! };
+//! let log = trainer.step(&batch).unwrap();
+//! assert!(log.loss.is_finite() && log.updated);
+//! ```
+
+use std::collections::HashMap;
+
+use burn::module::{Module, ModuleMapper, ModuleVisitor, Param, ParamId};
+use burn::tensor::{Device, Gradients, Tensor, TensorData};
+use w3d_core::Error;
+
+use crate::config::SchedulerConfig;
+use crate::scheduler::{DdimScheduler, Prediction, gaussian_noise};
+use crate::unet::UNet;
+
+/// The training stages of Wonder3D++ (`docs/training.md`; the authors' config file names do
+/// not match the paper's stage names).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Stage {
+    /// 1: multi-domain pre-training without switchers (task label `[0, 0]`), whole UNet,
+    /// learning rate 1e-4.
+    MultiDomain,
+    /// 2: mixed-domain fine-tuning with the domain switcher, whole UNet, learning rate 5e-5.
+    MixedDomain,
+    /// 3: cross-domain alignment (`cd_attention_mid`): only `attn_joint_mid` and
+    /// `norm_joint_mid` train, learning rate 2e-5; everything else stays bit-identical.
+    CrossDomain,
+}
+
+impl Stage {
+    /// The stage's number in the paper (1, 2 or 3).
+    pub fn number(self) -> u8 {
+        match self {
+            Stage::MultiDomain => 1,
+            Stage::MixedDomain => 2,
+            Stage::CrossDomain => 3,
+        }
+    }
+
+    /// The stage with that number.
+    pub fn from_number(n: u8) -> Result<Self, Error> {
+        match n {
+            1 => Ok(Stage::MultiDomain),
+            2 => Ok(Stage::MixedDomain),
+            3 => Ok(Stage::CrossDomain),
+            _ => Err(Error::invalid("stage", format!("1, 2 or 3 (found {n})"))),
+        }
+    }
+
+    /// The authors' learning rate for the stage.
+    pub fn learning_rate(self) -> f64 {
+        match self {
+            Stage::MultiDomain => 1e-4,
+            Stage::MixedDomain => 5e-5,
+            Stage::CrossDomain => 2e-5,
+        }
+    }
+
+    /// Whether the parameter with checkpoint key `key` trains in this stage (stage 3: the
+    /// modules whose name ends in `joint_mid`, as the authors' `trainable_modules`).
+    pub fn trains(self, key: &str) -> bool {
+        match self {
+            Stage::MultiDomain | Stage::MixedDomain => true,
+            Stage::CrossDomain => key.split('.').any(|module| module.ends_with("joint_mid")),
+        }
+    }
+}
+
+/// Hyper-parameters of a training run; [`TrainOptions::for_stage`] gives the authors' values.
+#[derive(Clone, Debug, PartialEq)]
+#[non_exhaustive]
+pub struct TrainOptions {
+    /// Which stage (trainable set).
+    pub stage: Stage,
+    /// Peak learning rate.
+    pub learning_rate: f64,
+    /// Learning-rate multiplier of the `class_embedding.*` parameters (the switchers' MLP): 10.
+    pub class_embedding_lr_mult: f64,
+    /// AdamW β₁, β₂: 0.9, 0.999.
+    pub betas: (f64, f64),
+    /// AdamW decoupled weight decay: 1e-2.
+    pub weight_decay: f64,
+    /// AdamW ε: 1e-8.
+    pub epsilon: f64,
+    /// Linear warm-up length in optimizer steps (`constant_with_warmup`): 100. The factor at
+    /// optimizer step `s` (0-based) is `s / warmup` below `warmup`, then 1 — so with warm-up the
+    /// first step has learning rate 0, as with diffusers' scheduler.
+    pub warmup_steps: usize,
+    /// Clip the global gradient norm to this (1.0); `None` disables clipping.
+    pub max_grad_norm: Option<f64>,
+    /// Micro-batches whose gradients are averaged into one optimizer step: 1.
+    pub gradient_accumulation: usize,
+    /// Min-SNR-γ loss weighting (5); `None` weighs every timestep equally.
+    pub min_snr_gamma: Option<f64>,
+    /// Condition-dropout rate p (0.05): per object, u < p drops CLIP, p ≤ u < 2p CLIP and
+    /// the image latent, 2p ≤ u < 3p the image latent.
+    pub condition_drop_rate: f64,
+    /// Seed of the timestep, noise and dropout draws.
+    pub seed: u64,
+}
+
+impl TrainOptions {
+    /// The authors' hyper-parameters for `stage`.
+    pub fn for_stage(stage: Stage) -> Self {
+        Self {
+            stage,
+            learning_rate: stage.learning_rate(),
+            class_embedding_lr_mult: 10.0,
+            betas: (0.9, 0.999),
+            weight_decay: 1e-2,
+            epsilon: 1e-8,
+            warmup_steps: 100,
+            max_grad_norm: Some(1.0),
+            gradient_accumulation: 1,
+            min_snr_gamma: Some(5.0),
+            condition_drop_rate: 0.05,
+            seed: 0,
+        }
+    }
+
+    /// Sets the learning rate.
+    pub fn with_learning_rate(mut self, lr: f64) -> Self {
+        self.learning_rate = lr;
+        self
+    }
+
+    /// Sets the warm-up length.
+    pub fn with_warmup_steps(mut self, steps: usize) -> Self {
+        self.warmup_steps = steps;
+        self
+    }
+
+    /// Sets the number of accumulated micro-batches per optimizer step.
+    pub fn with_gradient_accumulation(mut self, micro_batches: usize) -> Self {
+        self.gradient_accumulation = micro_batches;
+        self
+    }
+
+    /// Sets the gradient-norm clip (`None`: off).
+    pub fn with_max_grad_norm(mut self, norm: Option<f64>) -> Self {
+        self.max_grad_norm = norm;
+        self
+    }
+
+    /// Sets the condition-dropout rate.
+    pub fn with_condition_drop_rate(mut self, p: f64) -> Self {
+        self.condition_drop_rate = p;
+        self
+    }
+
+    /// Sets the seed of the random draws.
+    pub fn with_seed(mut self, seed: u64) -> Self {
+        self.seed = seed;
+        self
+    }
+
+    fn validate(&self) -> Result<(), Error> {
+        let positive = |name: &str, v: f64| {
+            if v.is_finite() && v >= 0.0 {
+                Ok(())
+            } else {
+                Err(Error::invalid(name, format!("a finite value ≥ 0 (found {v})")))
+            }
+        };
+        positive("learning_rate", self.learning_rate)?;
+        positive("class_embedding_lr_mult", self.class_embedding_lr_mult)?;
+        positive("weight_decay", self.weight_decay)?;
+        if !(self.epsilon.is_finite() && self.epsilon > 0.0) {
+            return Err(Error::invalid("epsilon", format!("a finite value > 0 (found {})", self.epsilon)));
+        }
+        for (name, b) in [("betas.0", self.betas.0), ("betas.1", self.betas.1)] {
+            if !(0.0..1.0).contains(&b) {
+                return Err(Error::invalid(name, format!("a value in [0, 1) (found {b})")));
+            }
+        }
+        for (name, value) in [("max_grad_norm", self.max_grad_norm), ("min_snr_gamma", self.min_snr_gamma)] {
+            if let Some(v) = value.filter(|v| !(v.is_finite() && *v > 0.0)) {
+                return Err(Error::invalid(name, format!("a finite value > 0 (found {v})")));
+            }
+        }
+        if self.gradient_accumulation == 0 {
+            return Err(Error::invalid("gradient_accumulation", "at least 1 micro-batch"));
+        }
+        if !(0.0..=1.0 / 3.0).contains(&self.condition_drop_rate) {
+            return Err(Error::invalid(
+                "condition_drop_rate",
+                format!("a rate in [0, 1/3] (three cases of p each; found {})", self.condition_drop_rate),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// One batch of encoded training data (see the module docs for the layout).
+#[derive(Clone, Debug)]
+pub struct TrainBatch {
+    /// Clean target latents `[n, c, h, w]` (VAE latents × scaling factor).
+    pub latents: Tensor<4>,
+    /// The condition image's latent for every image `[n, c, h, w]` (concatenated to the noisy
+    /// latent; `c + c` = the UNet's input channels).
+    pub condition_latents: Tensor<4>,
+    /// CLIP image embeddings for every image `[n, tokens, cross_attention_dim]`.
+    pub image_embeddings: Tensor<3>,
+    /// Switcher labels `[n, projection_class_embeddings_input_dim]` (models with a
+    /// projection class embedding).
+    pub class_labels: Option<Tensor<2>>,
+    /// Domains in the batch: 1 (stages 1 and 2) or 2 (stage 3: normal half, colour half).
+    pub domains: usize,
+}
+
+/// What condition dropout removes from one object's inputs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ConditionDrop {
+    /// Nothing.
+    Keep,
+    /// The CLIP embedding (u < p).
+    Clip,
+    /// The CLIP embedding and the image latent (p ≤ u < 2p).
+    ClipAndImage,
+    /// The image latent (2p ≤ u < 3p).
+    Image,
+}
+
+impl ConditionDrop {
+    /// The case for a uniform draw `u` in [0, 1) at rate `p`, as the authors' `drop_as_a_whole`.
+    pub fn from_uniform(u: f64, p: f64) -> Self {
+        if u < p {
+            ConditionDrop::Clip
+        } else if u < 2.0 * p {
+            ConditionDrop::ClipAndImage
+        } else if u < 3.0 * p {
+            ConditionDrop::Image
+        } else {
+            ConditionDrop::Keep
+        }
+    }
+
+    fn keeps_clip(self) -> bool {
+        matches!(self, ConditionDrop::Keep | ConditionDrop::Image)
+    }
+
+    fn keeps_image(self) -> bool {
+        matches!(self, ConditionDrop::Keep | ConditionDrop::Clip)
+    }
+}
+
+/// The random draws of one training step: one timestep per group of views, the noise per
+/// image, one condition dropout per object.
+#[derive(Clone, Debug)]
+pub struct StepDraws {
+    /// Timesteps in `[0, T)`, one per group (`domains · objects`).
+    pub timesteps: Vec<usize>,
+    /// Gaussian noise `[n, c, h, w]`.
+    pub noise: Tensor<4>,
+    /// One per object.
+    pub condition_drops: Vec<ConditionDrop>,
+}
+
+/// The objective: noise the latents at each group's timestep, predict with the UNet, and
+/// take the (Min-SNR-weighted) mean squared error against ε (or v / x₀ for models trained
+/// to predict those).
+#[derive(Clone, Debug)]
+pub struct DiffusionObjective {
+    alphas_cumprod: Vec<f64>,
+    prediction: Prediction,
+    min_snr_gamma: Option<f64>,
+}
+
+impl DiffusionObjective {
+    /// The objective for the noise schedule of `scheduler` (the checkpoint's
+    /// `scheduler_config.json`) and the Min-SNR γ (`None`: unweighted).
+    pub fn new(scheduler: SchedulerConfig, min_snr_gamma: Option<f64>) -> Result<Self, Error> {
+        let ddim = DdimScheduler::new(scheduler, 1)?;
+        Ok(Self { alphas_cumprod: ddim.alphas_cumprod().to_vec(), prediction: ddim.prediction(), min_snr_gamma })
+    }
+
+    /// Training timesteps T.
+    pub fn train_timesteps(&self) -> usize {
+        self.alphas_cumprod.len()
+    }
+
+    /// The loss weight of timestep `t`: `min(SNR, γ) / SNR` for ε-prediction,
+    /// `min(SNR, γ) / (SNR + 1)` for v-prediction, `min(SNR, γ)` for x₀-prediction, with
+    /// SNR = ᾱ / (1 − ᾱ); 1 without γ.
+    pub fn weight(&self, t: usize) -> f64 {
+        let Some(gamma) = self.min_snr_gamma else { return 1.0 };
+        let a = self.alphas_cumprod[t];
+        // As the authors (f32 schedule): SNR = (√ᾱ / √(1−ᾱ))².
+        let (sa, sb) = ((a as f32).sqrt(), ((1.0 - a) as f32).sqrt());
+        let snr = ((sa / sb) * (sa / sb)) as f64;
+        let clipped = snr.min(gamma);
+        match self.prediction {
+            Prediction::Epsilon => clipped / snr,
+            Prediction::VPrediction => clipped / (snr + 1.0),
+            Prediction::Sample => clipped,
+        }
+    }
+
+    /// The per-image weighted losses' mean for `batch` under `draws`: a scalar tensor `[1]`
+    /// that carries the autodiff graph when `unet` is on an autodiff device.
+    pub fn loss(&self, unet: &UNet, batch: &TrainBatch, draws: &StepDraws) -> Result<Tensor<1>, Error> {
+        let [n, c, h, w] = batch.latents.dims();
+        let views = unet.config().views();
+        let domains = batch.domains;
+        if domains == 0 || domains > 2 {
+            return Err(Error::invalid("batch.domains", format!("1 or 2 (found {domains})")));
+        }
+        if n == 0 || n % (views * domains) != 0 {
+            return Err(Error::invalid(
+                "batch.latents",
+                format!("a batch of domains × objects × {views} views (found {n} images for {domains} domains)"),
+            ));
+        }
+        let groups = n / views;
+        let objects = groups / domains;
+        if batch.condition_latents.dims() != [n, c, h, w] {
+            return Err(Error::invalid(
+                "batch.condition_latents",
+                format!("shape {:?} (found {:?})", [n, c, h, w], batch.condition_latents.dims()),
+            ));
+        }
+        let [en, tokens, dim] = batch.image_embeddings.dims();
+        if en != n {
+            return Err(Error::invalid("batch.image_embeddings", format!("{n} rows (found {en})")));
+        }
+        if draws.timesteps.len() != groups {
+            return Err(Error::invalid(
+                "draws.timesteps",
+                format!("one per group of views ({groups}, found {})", draws.timesteps.len()),
+            ));
+        }
+        if let Some(&t) = draws.timesteps.iter().find(|&&t| t >= self.train_timesteps()) {
+            return Err(Error::invalid(
+                "draws.timesteps",
+                format!("steps below {} (found {t})", self.train_timesteps()),
+            ));
+        }
+        if draws.noise.dims() != [n, c, h, w] {
+            return Err(Error::invalid(
+                "draws.noise",
+                format!("shape {:?} (found {:?})", [n, c, h, w], draws.noise.dims()),
+            ));
+        }
+        if draws.condition_drops.len() != objects {
+            return Err(Error::invalid(
+                "draws.condition_drops",
+                format!("one per object ({objects}, found {})", draws.condition_drops.len()),
+            ));
+        }
+        let device = batch.latents.device();
+        let per_image = |f: &dyn Fn(usize, usize) -> f32| -> Vec<f32> {
+            (0..n).map(|i| f(i / views, (i / views) % objects)).collect()
+        };
+        let column = |values: Vec<f32>| Tensor::<4>::from_data(TensorData::new(values, [n, 1, 1, 1]), &device);
+        let alpha = |g: usize| self.alphas_cumprod[draws.timesteps[g]];
+        let signal = column(per_image(&|g, _| alpha(g).sqrt() as f32));
+        let noise_level = column(per_image(&|g, _| (1.0 - alpha(g)).sqrt() as f32));
+        let keep_image = column(per_image(&|_, o| f32::from(u8::from(draws.condition_drops[o].keeps_image()))));
+        let keep_clip: Tensor<3> = Tensor::from_data(
+            TensorData::new(per_image(&|_, o| f32::from(u8::from(draws.condition_drops[o].keeps_clip()))), [n, 1, 1]),
+            &device,
+        );
+        let x0 = batch.latents.clone();
+        let noisy = x0.clone() * signal.clone() + draws.noise.clone() * noise_level.clone();
+        let target = match self.prediction {
+            Prediction::Epsilon => draws.noise.clone(),
+            Prediction::VPrediction => draws.noise.clone() * signal - x0 * noise_level,
+            Prediction::Sample => x0,
+        };
+        let input = Tensor::cat(vec![noisy, batch.condition_latents.clone() * keep_image], 1);
+        let context = batch.image_embeddings.clone() * keep_clip.expand([n, tokens, dim]);
+        let t: Vec<f32> = (0..n).map(|i| draws.timesteps[i / views] as f32).collect();
+        let prediction = unet.forward(input, &t, context, batch.class_labels.clone())?;
+        let diff = prediction - target;
+        let mse: Tensor<1> = (diff.clone() * diff).reshape([n, c * h * w]).mean_dim(1).reshape([n]);
+        let weights: Vec<f32> = (0..n).map(|i| self.weight(draws.timesteps[i / views]) as f32).collect();
+        let weights = Tensor::<1>::from_data(TensorData::new(weights, [n]), &device);
+        Ok((mse * weights).mean())
+    }
+}
+
+/// What one [`Trainer::step`] did.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StepLog {
+    /// Optimizer steps taken so far (after this micro-batch).
+    pub step: usize,
+    /// The micro-batch's loss.
+    pub loss: f32,
+    /// Whether this micro-batch completed an optimizer step.
+    pub updated: bool,
+    /// The global gradient norm before clipping (on optimizer steps).
+    pub grad_norm: Option<f32>,
+    /// The base learning rate used (on optimizer steps).
+    pub learning_rate: Option<f64>,
+}
+
+/// AdamW moments of one parameter, flattened.
+#[derive(Clone, Debug)]
+struct Moments {
+    first: Tensor<1>,
+    second: Tensor<1>,
+}
+
+/// A UNet being trained: the model on an autodiff device, the objective, AdamW state and the
+/// random draws.
+#[derive(Debug)]
+pub struct Trainer {
+    unet: UNet,
+    objective: DiffusionObjective,
+    options: TrainOptions,
+    /// Trainable parameters: key and whether it is in the class-embedding group.
+    trainable: HashMap<ParamId, (String, bool)>,
+    moments: HashMap<ParamId, Moments>,
+    accumulated: HashMap<ParamId, Tensor<1>>,
+    micro_batches: usize,
+    step: usize,
+    rng: u64,
+}
+
+impl Trainer {
+    /// Prepares `unet` for training with `options` on the noise schedule `scheduler`: freezes
+    /// what the stage does not train and moves the model to the autodiff version of its device.
+    pub fn new(unet: UNet, scheduler: SchedulerConfig, options: TrainOptions) -> Result<Self, Error> {
+        options.validate()?;
+        let objective = DiffusionObjective::new(scheduler, options.min_snr_gamma)?;
+        let mut trainable = HashMap::new();
+        for named in unet.named_parameters() {
+            if options.stage.trains(&named.key) {
+                trainable.insert(named.id, (named.key.clone(), named.key.starts_with("class_embedding.")));
+            }
+        }
+        if trainable.is_empty() {
+            return Err(Error::invalid(
+                "stage",
+                format!(
+                    "a model with parameters stage {} trains (cross-domain stage: `cd_attention_mid`)",
+                    options.stage.number()
+                ),
+            ));
+        }
+        let unet = unet.map(&mut RequireGrad { trainable: &trainable }).train();
+        let rng = options.seed ^ 0x9E37_79B9_7F4A_7C15;
+        Ok(Self {
+            unet,
+            objective,
+            options,
+            trainable,
+            moments: HashMap::new(),
+            accumulated: HashMap::new(),
+            micro_batches: 0,
+            step: 0,
+            rng,
+        })
+    }
+
+    /// The autodiff device the model trains on (create batches on it).
+    pub fn device(&self) -> Device {
+        self.unet.devices().into_iter().next().unwrap_or_default()
+    }
+
+    /// The model being trained (on the autodiff device).
+    pub fn unet(&self) -> &UNet {
+        &self.unet
+    }
+
+    /// The trained model for inference (autodiff off).
+    pub fn inference_unet(&self) -> UNet {
+        self.unet.valid()
+    }
+
+    /// The objective.
+    pub fn objective(&self) -> &DiffusionObjective {
+        &self.objective
+    }
+
+    /// The options.
+    pub fn options(&self) -> &TrainOptions {
+        &self.options
+    }
+
+    /// Optimizer steps taken.
+    pub fn steps(&self) -> usize {
+        self.step
+    }
+
+    /// Number of trainable parameter tensors.
+    pub fn trainable_tensors(&self) -> usize {
+        self.trainable.len()
+    }
+
+    fn next_u64(&mut self) -> u64 {
+        // splitmix64
+        self.rng = self.rng.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.rng;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    fn uniform(&mut self) -> f64 {
+        (self.next_u64() >> 11) as f64 / (1u64 << 53) as f64
+    }
+
+    /// Draws the timesteps, noise and condition dropout of the next step for `batch`.
+    pub fn draw(&mut self, batch: &TrainBatch) -> StepDraws {
+        let dims = batch.latents.dims();
+        let views = self.unet.config().views();
+        let groups = dims[0] / views;
+        let objects = groups / batch.domains.max(1);
+        let t_max = self.objective.train_timesteps() as u64;
+        let timesteps = (0..groups).map(|_| (self.next_u64() % t_max) as usize).collect();
+        let condition_drops = (0..objects)
+            .map(|_| {
+                let u = self.uniform();
+                ConditionDrop::from_uniform(u, self.options.condition_drop_rate)
+            })
+            .collect();
+        let seed = self.next_u64();
+        let noise = gaussian_noise(dims, seed, &batch.latents.device());
+        StepDraws { timesteps, noise, condition_drops }
+    }
+
+    /// One micro-batch with the trainer's own random draws; see [`Trainer::step_with`].
+    pub fn step(&mut self, batch: &TrainBatch) -> Result<StepLog, Error> {
+        let draws = self.draw(batch);
+        self.step_with(batch, &draws)
+    }
+
+    /// One micro-batch with given draws: forward, backward, gradients accumulated; every
+    /// `gradient_accumulation` micro-batches an AdamW step (clipped, warmed-up).
+    pub fn step_with(&mut self, batch: &TrainBatch, draws: &StepDraws) -> Result<StepLog, Error> {
+        let loss = self.objective.loss(&self.unet, batch, draws)?;
+        let loss_value = loss
+            .clone()
+            .into_data()
+            .convert::<f32>()
+            .try_to_vec::<f32>()
+            .map_err(|e| Error::invalid("loss", format!("a readable f32 scalar ({e:?})")))?[0];
+        if !loss_value.is_finite() {
+            return Err(Error::invalid(
+                "loss",
+                format!("a finite value (found {loss_value}); lower the learning rate"),
+            ));
+        }
+        let grads = loss.backward();
+        let scale = 1.0 / self.options.gradient_accumulation as f64;
+        let mut collect = CollectGrads { grads: &grads, trainable: &self.trainable, out: Vec::new() };
+        self.unet.visit(&mut collect);
+        for (id, g) in collect.out {
+            let g = g * scale;
+            let sum = match self.accumulated.remove(&id) {
+                Some(acc) => acc + g,
+                None => g,
+            };
+            self.accumulated.insert(id, sum);
+        }
+        self.micro_batches += 1;
+        if self.micro_batches < self.options.gradient_accumulation {
+            return Ok(StepLog {
+                step: self.step,
+                loss: loss_value,
+                updated: false,
+                grad_norm: None,
+                learning_rate: None,
+            });
+        }
+        self.micro_batches = 0;
+        let grads = std::mem::take(&mut self.accumulated);
+        let (grad_norm, lr) = self.apply(grads)?;
+        Ok(StepLog {
+            step: self.step,
+            loss: loss_value,
+            updated: true,
+            grad_norm: Some(grad_norm),
+            learning_rate: Some(lr),
+        })
+    }
+
+    /// The learning-rate factor of optimizer step `step` (0-based).
+    pub fn warmup_factor(&self, step: usize) -> f64 {
+        let w = self.options.warmup_steps;
+        if step < w { step as f64 / w as f64 } else { 1.0 }
+    }
+
+    fn apply(&mut self, grads: HashMap<ParamId, Tensor<1>>) -> Result<(f32, f64), Error> {
+        // Global norm in f64 over the per-tensor sums of squares, as `clip_grad_norm_`.
+        let mut total = 0.0f64;
+        for g in grads.values() {
+            let sq: f32 = (g.clone() * g.clone()).sum().into_scalar();
+            total += sq as f64;
+        }
+        let norm = total.sqrt();
+        if !norm.is_finite() {
+            return Err(Error::invalid("gradients", format!("a finite norm (found {norm}); lower the learning rate")));
+        }
+        let clip = match self.options.max_grad_norm {
+            Some(max) => (max / (norm + 1e-6)).min(1.0),
+            None => 1.0,
+        };
+        let lr = self.options.learning_rate * self.warmup_factor(self.step);
+        self.step += 1;
+        let o = &self.options;
+        let mut update = AdamW {
+            grads,
+            moments: &mut self.moments,
+            trainable: &self.trainable,
+            clip,
+            lr,
+            class_mult: o.class_embedding_lr_mult,
+            betas: o.betas,
+            weight_decay: o.weight_decay,
+            epsilon: o.epsilon,
+            step: self.step,
+        };
+        let unet = self.unet.clone().map(&mut update);
+        self.unet = unet;
+        Ok((norm as f32, lr))
+    }
+}
+
+/// Sets `require_grad` on the trainable parameters only.
+struct RequireGrad<'a> {
+    trainable: &'a HashMap<ParamId, (String, bool)>,
+}
+
+impl ModuleMapper for RequireGrad<'_> {
+    fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+        let trains = self.trainable.contains_key(&param.id);
+        param.set_require_grad(trains)
+    }
+}
+
+/// Gradients of the trainable parameters, flattened, on the inner (non-autodiff) device.
+struct CollectGrads<'a> {
+    grads: &'a Gradients,
+    trainable: &'a HashMap<ParamId, (String, bool)>,
+    out: Vec<(ParamId, Tensor<1>)>,
+}
+
+impl ModuleVisitor for CollectGrads<'_> {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        if !self.trainable.contains_key(&param.id) {
+            return;
+        }
+        if let Some(g) = param.val().grad(self.grads) {
+            let n = g.shape().num_elements();
+            self.out.push((param.id, g.reshape([n])));
+        }
+    }
+}
+
+/// PyTorch's AdamW (decoupled weight decay, bias-corrected moments) on clipped gradients.
+struct AdamW<'a> {
+    grads: HashMap<ParamId, Tensor<1>>,
+    moments: &'a mut HashMap<ParamId, Moments>,
+    trainable: &'a HashMap<ParamId, (String, bool)>,
+    clip: f64,
+    lr: f64,
+    class_mult: f64,
+    betas: (f64, f64),
+    weight_decay: f64,
+    epsilon: f64,
+    step: usize,
+}
+
+impl ModuleMapper for AdamW<'_> {
+    fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+        let Some(grad) = self.grads.remove(&param.id) else { return param };
+        let lr = match self.trainable.get(&param.id) {
+            Some((_, true)) => self.lr * self.class_mult,
+            _ => self.lr,
+        };
+        let id = param.id;
+        let (b1, b2) = self.betas;
+        let grad = grad * self.clip;
+        let moments = match self.moments.remove(&id) {
+            Some(m) => Moments {
+                first: m.first * b1 + grad.clone() * (1.0 - b1),
+                second: m.second * b2 + grad.clone() * grad * (1.0 - b2),
+            },
+            None => Moments { first: grad.clone() * (1.0 - b1), second: grad.clone() * grad * (1.0 - b2) },
+        };
+        let bias1 = 1.0 - b1.powi(self.step as i32);
+        let bias2 = 1.0 - b2.powi(self.step as i32);
+        let denom = moments.second.clone().sqrt() / bias2.sqrt() + self.epsilon;
+        let delta = moments.first.clone() / denom * (lr / bias1);
+        self.moments.insert(id, moments);
+        let weight_decay = 1.0 - lr * self.weight_decay;
+        param.map(|tensor| {
+            let dims = tensor.dims();
+            let inner = tensor.inner();
+            let n = inner.shape().num_elements();
+            let updated = inner.reshape([n]) * weight_decay - delta;
+            Tensor::from_inner(updated.reshape(dims)).require_grad()
+        })
+    }
+}

@@ -1,0 +1,216 @@
+//! Training (`w3d_diffusion::train`): the objective learns, the stage presets train what they
+//! say and nothing else, accumulation averages, checkpoints round-trip, bad draws are refused.
+
+mod common;
+
+use std::collections::HashMap;
+
+use common::{fixture, values};
+use w3d_diffusion::train::{ConditionDrop, DiffusionObjective, Stage, StepDraws, TrainBatch, TrainOptions, Trainer};
+use w3d_diffusion::{Device, SchedulerConfig, Tensor, UNet, UNetConfig, gaussian_noise};
+
+fn tiny_config() -> UNetConfig {
+    UNetConfig::from_file(fixture("wonder3d_tiny").join("unet").join("config.json")).unwrap()
+}
+
+fn scheduler() -> SchedulerConfig {
+    SchedulerConfig::from_file(fixture("wonder3d_tiny").join("scheduler").join("scheduler_config.json")).unwrap()
+}
+
+/// One object in both domains (12 images of 8×8 latents) with smooth, structured targets.
+fn batch(device: &Device, seed: u64) -> TrainBatch {
+    let latents = gaussian_noise([12, 4, 8, 8], seed, device) * 0.5;
+    let condition = gaussian_noise([1, 4, 8, 8], seed + 1, device).repeat_dim(0, 12);
+    let embeddings = gaussian_noise([1, 1, 16], seed + 2, device).repeat_dim(0, 12);
+    let mut labels = Vec::new();
+    for domain in 0..2 {
+        for view in 0..6 {
+            let v: Vec<f32> = (0..7).map(|i| if i == 5 + domain { 1.0 } else { 0.1 * view as f32 }).collect();
+            labels.extend(v.iter().map(|x| x.sin()));
+            labels.extend(v.iter().map(|x| x.cos()));
+        }
+    }
+    TrainBatch {
+        latents,
+        condition_latents: condition,
+        image_embeddings: embeddings,
+        class_labels: Some(Tensor::from_data(w3d_diffusion::TensorData::new(labels, [12, 14]), device)),
+        domains: 2,
+    }
+}
+
+fn fixed_draws(device: &Device) -> StepDraws {
+    StepDraws {
+        timesteps: vec![250, 600],
+        noise: gaussian_noise([12, 4, 8, 8], 99, device),
+        condition_drops: vec![ConditionDrop::Keep],
+    }
+}
+
+fn params_by_key(unet: &UNet) -> HashMap<String, Vec<f32>> {
+    let dir = tempfile::tempdir().unwrap();
+    unet.save(dir.path()).unwrap();
+    let mut file =
+        w3d_diffusion::SafetensorsFile::open(dir.path().join("diffusion_pytorch_model.safetensors")).unwrap();
+    let keys: Vec<String> = file.shapes().map(|(k, _)| k.to_string()).collect();
+    keys.into_iter().map(|k| (k.clone(), file.read_f32(&k).unwrap().0)).collect()
+}
+
+#[test]
+fn a_fresh_tiny_model_fits_one_fixed_batch() {
+    let device = w3d_diffusion::default_device();
+    let unet = UNet::random(&tiny_config(), 7, &device).unwrap();
+    let options = TrainOptions::for_stage(Stage::MixedDomain)
+        .with_learning_rate(3e-3)
+        .with_warmup_steps(0)
+        .with_max_grad_norm(Some(1.0));
+    let mut trainer = Trainer::new(unet, scheduler(), options).unwrap();
+    let device = trainer.device();
+    let batch = batch(&device, 3);
+    let draws = fixed_draws(&device);
+    let first = trainer.step_with(&batch, &draws).unwrap().loss;
+    let mut last = first;
+    for _ in 1..200 {
+        last = trainer.step_with(&batch, &draws).unwrap().loss;
+        if last * 5.0 < first {
+            break;
+        }
+    }
+    eprintln!("fixed batch: loss {first} → {last} in {} steps", trainer.steps());
+    assert!(last * 5.0 < first, "loss {first} → {last} after {} steps: not a 5× drop", trainer.steps());
+}
+
+#[test]
+fn stage_three_changes_only_the_joint_attention() {
+    let device = w3d_diffusion::default_device();
+    let unet = UNet::random(&tiny_config(), 11, &device).unwrap();
+    let before = params_by_key(&unet);
+    let options = TrainOptions::for_stage(Stage::CrossDomain).with_learning_rate(1e-3).with_warmup_steps(0);
+    let mut trainer = Trainer::new(unet, scheduler(), options).unwrap();
+    assert_eq!(trainer.trainable_tensors(), before.keys().filter(|k| k.contains("joint_mid")).count());
+    let device = trainer.device();
+    let batch = batch(&device, 5);
+    for _ in 0..10 {
+        assert!(trainer.step(&batch).unwrap().updated);
+    }
+    let after = params_by_key(&trainer.inference_unet());
+    let mut changed = 0;
+    for (key, old) in &before {
+        let new = &after[key];
+        if key.contains("attn_joint_mid.") || key.contains("norm_joint_mid.") {
+            changed += usize::from(old != new);
+        } else {
+            assert!(old.iter().zip(new).all(|(a, b)| a.to_bits() == b.to_bits()), "{key} changed in stage 3");
+        }
+    }
+    assert!(changed > 0, "no joint_mid parameter changed");
+}
+
+#[test]
+fn stage_presets_follow_the_authors_configs() {
+    assert_eq!(Stage::MultiDomain.learning_rate(), 1e-4);
+    assert_eq!(Stage::MixedDomain.learning_rate(), 5e-5);
+    assert_eq!(Stage::CrossDomain.learning_rate(), 2e-5);
+    for stage in [Stage::MultiDomain, Stage::MixedDomain] {
+        assert!(stage.trains("conv_in.weight") && stage.trains("class_embedding.linear_1.weight"));
+    }
+    let three = Stage::CrossDomain;
+    assert!(three.trains("down_blocks.0.attentions.0.transformer_blocks.0.attn_joint_mid.to_q.weight"));
+    assert!(three.trains("mid_block.attentions.0.transformer_blocks.0.norm_joint_mid.bias"));
+    assert!(!three.trains("down_blocks.0.attentions.0.transformer_blocks.0.attn1.to_q.weight"));
+    assert!(!three.trains("class_embedding.linear_1.weight"));
+    let options = TrainOptions::for_stage(Stage::MixedDomain);
+    assert_eq!((options.betas, options.weight_decay, options.epsilon), ((0.9, 0.999), 1e-2, 1e-8));
+    assert_eq!((options.warmup_steps, options.max_grad_norm, options.min_snr_gamma), (100, Some(1.0), Some(5.0)));
+    assert_eq!((options.class_embedding_lr_mult, options.condition_drop_rate), (10.0, 0.05));
+    assert_eq!(Stage::from_number(3).unwrap(), Stage::CrossDomain);
+    assert!(Stage::from_number(4).is_err());
+}
+
+#[test]
+fn condition_dropout_has_the_three_cases_of_the_authors() {
+    let p = 0.05;
+    assert_eq!(ConditionDrop::from_uniform(0.01, p), ConditionDrop::Clip);
+    assert_eq!(ConditionDrop::from_uniform(0.07, p), ConditionDrop::ClipAndImage);
+    assert_eq!(ConditionDrop::from_uniform(0.12, p), ConditionDrop::Image);
+    assert_eq!(ConditionDrop::from_uniform(0.16, p), ConditionDrop::Keep);
+    assert_eq!(ConditionDrop::from_uniform(0.9, p), ConditionDrop::Keep);
+}
+
+#[test]
+fn min_snr_weights_cap_the_easy_timesteps() {
+    let objective = DiffusionObjective::new(scheduler(), Some(5.0)).unwrap();
+    // Low t: SNR ≫ 5 → weight 5/SNR < 1; high t: SNR < 5 → weight 1.
+    assert!(objective.weight(10) < 0.1);
+    assert_eq!(objective.weight(900), 1.0);
+    let plain = DiffusionObjective::new(scheduler(), None).unwrap();
+    assert_eq!(plain.weight(10), 1.0);
+}
+
+#[test]
+fn two_accumulated_copies_of_a_batch_step_like_one() {
+    let device = w3d_diffusion::default_device();
+    let run = |accumulation: usize| {
+        let unet = UNet::random(&tiny_config(), 13, &device).unwrap();
+        let options = TrainOptions::for_stage(Stage::MixedDomain)
+            .with_learning_rate(1e-3)
+            .with_warmup_steps(0)
+            .with_gradient_accumulation(accumulation);
+        let mut trainer = Trainer::new(unet, scheduler(), options).unwrap();
+        let device = trainer.device();
+        let (batch, draws) = (batch(&device, 21), fixed_draws(&device));
+        for i in 0..accumulation {
+            let log = trainer.step_with(&batch, &draws).unwrap();
+            assert_eq!(log.updated, i + 1 == accumulation);
+        }
+        params_by_key(&trainer.inference_unet())
+    };
+    let (one, two) = (run(1), run(2));
+    for (key, a) in &one {
+        let worst = a.iter().zip(&two[key]).map(|(x, y)| (x - y).abs()).fold(0.0f32, f32::max);
+        assert!(worst < 1e-6, "{key}: accumulated step differs by {worst}");
+    }
+}
+
+#[test]
+fn a_saved_checkpoint_loads_back_to_the_same_outputs() {
+    let device = w3d_diffusion::default_device();
+    let unet = UNet::random(&tiny_config(), 17, &device).unwrap();
+    let options = TrainOptions::for_stage(Stage::MixedDomain).with_learning_rate(1e-3).with_warmup_steps(0);
+    let mut trainer = Trainer::new(unet, scheduler(), options).unwrap();
+    let batch_ad = batch(&trainer.device(), 31);
+    trainer.step(&batch_ad).unwrap();
+    let trained = trainer.inference_unet();
+    let dir = tempfile::tempdir().unwrap();
+    trained.save(dir.path()).unwrap();
+    let loaded = UNet::from_dir(dir.path(), &device).unwrap();
+    let b = batch(&device, 41);
+    let input = Tensor::cat(vec![b.latents.clone(), b.condition_latents.clone()], 1);
+    let t = [500.0f32; 12];
+    let out =
+        |u: &UNet| values(u.forward(input.clone(), &t, b.image_embeddings.clone(), b.class_labels.clone()).unwrap());
+    assert_eq!(out(&trained), out(&loaded), "outputs differ after a save / load round trip");
+}
+
+#[test]
+fn malformed_draws_and_options_are_refused_by_name() {
+    let device = w3d_diffusion::default_device();
+    let unet = UNet::random(&tiny_config(), 19, &device).unwrap();
+    let bad = TrainOptions::for_stage(Stage::MixedDomain).with_condition_drop_rate(0.5);
+    let e = Trainer::new(unet.clone(), scheduler(), bad).unwrap_err().to_string();
+    assert!(e.contains("condition_drop_rate"), "{e}");
+    let mut trainer = Trainer::new(unet, scheduler(), TrainOptions::for_stage(Stage::MixedDomain)).unwrap();
+    let device = trainer.device();
+    let batch = batch(&device, 1);
+    let mut draws = fixed_draws(&device);
+    draws.timesteps = vec![1];
+    let e = trainer.step_with(&batch, &draws).unwrap_err().to_string();
+    assert!(e.contains("draws.timesteps"), "{e}");
+    draws.timesteps = vec![1, 5000];
+    let e = trainer.step_with(&batch, &draws).unwrap_err().to_string();
+    assert!(e.contains("draws.timesteps"), "{e}");
+    let mut odd = batch.clone();
+    odd.domains = 3;
+    let e = trainer.step_with(&odd, &fixed_draws(&device)).unwrap_err().to_string();
+    assert!(e.contains("batch.domains"), "{e}");
+}
