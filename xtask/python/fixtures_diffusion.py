@@ -15,7 +15,8 @@ timesteps, σ and 10-step trajectories of a closed-form stand-in model, as
 `python fixtures_diffusion.py cd_attention_last` writes only the `cd_attention_last` fixtures
 (`wonder3d_tiny_last/`, `multiview/unet_last_io.safetensors`): the other fixtures' outputs
 move in the last bits between torch / transformers versions, so they need not be rewritten to
-add this one. Last written with torch 2.4.1, diffusers 0.30.3, transformers 4.45.2.
+add this one. `python fixtures_diffusion.py train_step` writes only `train_step.safetensors`
+(one training step of the tiny multi-view UNet). Last written with torch 2.4.1, diffusers 0.30.3, transformers 4.45.2.
 """
 
 import json
@@ -595,6 +596,95 @@ def dpm_solver_fixture():
     save(out, os.path.join(OUT, "dpm_solver.safetensors"))
 
 
+TRAIN_STEP_PARAMS = [
+    "conv_in.weight",
+    "down_blocks.0.attentions.0.transformer_blocks.0.attn1.to_q.weight",
+    "down_blocks.0.attentions.0.transformer_blocks.0.attn_joint_mid.to_k.weight",
+    "class_embedding.linear_1.weight",
+    "conv_out.weight",
+]
+
+
+def train_step_fixture():
+    """`tests/fixtures/train_step.safetensors`: one Wonder3D++ training step of the tiny
+    multi-view UNet (`wonder3d_tiny/unet`), written from the authors' objective
+    (train_mvdiffusion_joint.py as described in docs/training.md): 2 objects × 2 domains × 6
+    views, one timestep per group of 6, independent noise per image, condition dropout as a
+    whole (object 0 keeps everything, object 1 loses CLIP and the image latent), ε-MSE with
+    Min-SNR-γ (γ = 5) weights, backward, clip_grad_norm_(1.0), one AdamW step (lr 1e-3,
+    class_embedding at 10×, β 0.9/0.999, wd 1e-2, ε 1e-8, no warm-up). Saves the inputs, the
+    loss, the gradients of five named parameters and those parameters after the step."""
+    from diffusers import DDPMScheduler
+    from safetensors.torch import load_file
+
+    torch.manual_seed(7)
+    model_dir = os.path.join(OUT, "wonder3d_tiny")
+    unet = UNet2DConditionModel(**MV_UNET)
+    make_multiview(unet)
+    weights = {k: v.float() for k, v in load_file(os.path.join(model_dir, "unet", "diffusion_pytorch_model.safetensors")).items()}
+    unet.load_state_dict(weights, strict=True)
+    unet.train()
+    with open(os.path.join(model_dir, "scheduler", "scheduler_config.json")) as f:
+        sched_config = {k: v for k, v in json.load(f).items() if not k.startswith("_")}
+    noise_scheduler = DDPMScheduler(**{k: v for k, v in sched_config.items() if k in
+                                       ("num_train_timesteps", "beta_start", "beta_end", "beta_schedule", "prediction_type")})
+
+    objects, views = 2, NUM_VIEWS
+    n = 2 * objects * views
+    latents = torch.randn(n, 4, 8, 8) * 0.5
+    cond = torch.randn(objects, 4, 8, 8)
+    embeds = torch.randn(objects, 1, 16)
+    # [normal: obj0 views, obj1 views, colour: obj0 views, obj1 views]
+    cond_latents = cond.repeat_interleave(views, dim=0).repeat(2, 1, 1, 1)
+    image_embeddings = embeds.repeat_interleave(views, dim=0).repeat(2, 1, 1)
+    labels = torch.cat([switcher_labels("normal", "ortho")] * objects + [switcher_labels("colour", "ortho")] * objects)
+    group_timesteps = torch.tensor([250, 600, 17, 999])
+    timesteps = group_timesteps.repeat_interleave(views)
+    noise = torch.randn(n, 4, 8, 8)
+    random_p = torch.tensor([0.5, 0.07])  # object 0: keep; object 1: drop CLIP and the image latent
+    p = 0.05
+    image_mask = 1 - ((random_p >= p).float() * (random_p < 3 * p).float())
+    image_mask = image_mask.reshape(objects, 1, 1, 1, 1).repeat(1, views, 1, 1, 1).reshape(objects * views, 1, 1, 1)
+    image_mask = torch.cat([image_mask, image_mask], dim=0)
+    clip_mask = 1 - (random_p < 2 * p).float()
+    clip_mask = clip_mask.reshape(objects, 1, 1, 1).repeat(1, views, 1, 1).reshape(objects * views, 1, 1)
+    clip_mask = torch.cat([clip_mask, clip_mask], dim=0)
+
+    with torch.enable_grad():
+        noisy = noise_scheduler.add_noise(latents, noise, timesteps)
+        model_in = torch.cat([noisy, image_mask * cond_latents], dim=1)
+        pred = unet(model_in, timesteps, encoder_hidden_states=clip_mask * image_embeddings, class_labels=labels).sample
+        alphas_cumprod = noise_scheduler.alphas_cumprod
+        alpha = alphas_cumprod[timesteps] ** 0.5
+        sigma = (1.0 - alphas_cumprod[timesteps]) ** 0.5
+        snr = (alpha / sigma) ** 2
+        mse_weights = torch.stack([snr, 5.0 * torch.ones_like(timesteps, dtype=torch.float32)], dim=1).min(dim=1)[0] / snr
+        loss = F.mse_loss(pred.float(), noise.float(), reduction="none")
+        loss = loss.mean(dim=list(range(1, len(loss.shape)))) * mse_weights
+        loss = loss.mean()
+        loss.backward()
+    named = dict(unet.named_parameters())
+    grads = {f"grad.{k}": named[k].grad.detach().clone() for k in TRAIN_STEP_PARAMS}
+    grad_norm = torch.nn.utils.clip_grad_norm_(unet.parameters(), 1.0)
+    class_params = [p_ for k, p_ in unet.named_parameters() if k.startswith("class_embedding.")]
+    other_params = [p_ for k, p_ in unet.named_parameters() if not k.startswith("class_embedding.")]
+    lr = 1e-3
+    optimizer = torch.optim.AdamW(
+        [{"params": other_params, "lr": lr}, {"params": class_params, "lr": lr * 10}],
+        betas=(0.9, 0.999), weight_decay=1e-2, eps=1e-8,
+    )
+    optimizer.step()
+    out = {
+        "latents": latents, "condition_latents": cond_latents, "image_embeddings": image_embeddings,
+        "class_labels": labels, "noise": noise, "group_timesteps": group_timesteps.float(),
+        "loss": loss.detach().reshape(1), "grad_norm": grad_norm.detach().reshape(1),
+    }
+    out.update(grads)
+    out.update({f"after.{k}": named[k].detach().clone() for k in TRAIN_STEP_PARAMS})
+    save(out, os.path.join(OUT, "train_step.safetensors"))
+    print(f"train step: loss {loss.item():.6f}, grad norm {grad_norm.item():.6f}")
+
+
 def main():
     os.makedirs(OUT, exist_ok=True)
     if sys.argv[1:] == ["dpm_solver"]:
@@ -603,6 +693,9 @@ def main():
     if sys.argv[1:] == ["cd_attention_last"]:
         cd_attention_last_fixtures()
         return
+    if sys.argv[1:] == ["train_step"]:
+        train_step_fixture()
+        return
     unet = unet_fixture()
     vae_fixture()
     clip_fixture()
@@ -610,6 +703,7 @@ def main():
     dpm_solver_fixture()
     multiview_fixtures()
     cd_attention_last_fixtures()
+    train_step_fixture()
     total = sum(os.path.getsize(os.path.join(r, f)) for r, _, fs in os.walk(OUT) for f in fs)
     print(f"fixtures written to {os.path.normpath(OUT)}: {total / 1e6:.2f} MB")
     if total > 5e6:

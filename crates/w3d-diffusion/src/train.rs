@@ -40,6 +40,7 @@ use w3d_core::Error;
 use crate::config::SchedulerConfig;
 use crate::scheduler::{DdimScheduler, Prediction, gaussian_noise};
 use crate::unet::UNet;
+use crate::weights::NamedValues;
 
 /// The training stages of Wonder3D++ (`docs/training.md`; the authors' config file names do
 /// not match the paper's stage names).
@@ -574,7 +575,7 @@ impl Trainer {
         let scale = 1.0 / self.options.gradient_accumulation as f64;
         let mut collect = CollectGrads { grads: &grads, trainable: &self.trainable, out: Vec::new() };
         self.unet.visit(&mut collect);
-        for (id, g) in collect.out {
+        for (id, _, g) in collect.out {
             let g = g * scale;
             let sum = match self.accumulated.remove(&id) {
                 Some(acc) => acc + g,
@@ -602,6 +603,26 @@ impl Trainer {
             grad_norm: Some(grad_norm),
             learning_rate: Some(lr),
         })
+    }
+
+    /// The loss and the gradient of every trainable parameter for `batch` under `draws`, under
+    /// their checkpoint keys in PyTorch layout, without updating anything (for inspection and
+    /// parity checks against a PyTorch training step).
+    pub fn gradients(&self, batch: &TrainBatch, draws: &StepDraws) -> Result<(f32, Vec<NamedValues>), Error> {
+        let loss = self.objective.loss(&self.unet, batch, draws)?;
+        let loss_value = scalar(&loss)?;
+        let grads = loss.backward();
+        let mut collect = CollectGrads { grads: &grads, trainable: &self.trainable, out: Vec::new() };
+        self.unet.visit(&mut collect);
+        let mut by_id: HashMap<ParamId, (Vec<usize>, Tensor<1>)> =
+            collect.out.into_iter().map(|(id, dims, g)| (id, (dims, g))).collect();
+        let mut named = Vec::new();
+        for param in self.unet.named_parameters() {
+            let Some((dims, g)) = by_id.remove(&param.id) else { continue };
+            let values = g.into_data().convert::<f32>().try_to_vec::<f32>().unwrap_or_default();
+            named.push(NamedValues::from_param(param, dims, values)?);
+        }
+        Ok((loss_value, named))
     }
 
     /// The learning-rate factor of optimizer step `step` (0-based).
@@ -646,6 +667,20 @@ impl Trainer {
     }
 }
 
+/// The value of a one-element loss, refused when not finite.
+fn scalar(loss: &Tensor<1>) -> Result<f32, Error> {
+    let values = loss
+        .clone()
+        .into_data()
+        .convert::<f32>()
+        .try_to_vec::<f32>()
+        .map_err(|e| Error::invalid("loss", format!("a readable f32 scalar ({e:?})")))?;
+    match values.first() {
+        Some(v) if v.is_finite() => Ok(*v),
+        v => Err(Error::invalid("loss", format!("a finite value (found {v:?}); lower the learning rate"))),
+    }
+}
+
 /// Sets `require_grad` on the trainable parameters only.
 struct RequireGrad<'a> {
     trainable: &'a HashMap<ParamId, (String, bool)>,
@@ -662,7 +697,8 @@ impl ModuleMapper for RequireGrad<'_> {
 struct CollectGrads<'a> {
     grads: &'a Gradients,
     trainable: &'a HashMap<ParamId, (String, bool)>,
-    out: Vec<(ParamId, Tensor<1>)>,
+    /// Id, the parameter's dims, the flattened gradient.
+    out: Vec<(ParamId, Vec<usize>, Tensor<1>)>,
 }
 
 impl ModuleVisitor for CollectGrads<'_> {
@@ -671,8 +707,9 @@ impl ModuleVisitor for CollectGrads<'_> {
             return;
         }
         if let Some(g) = param.val().grad(self.grads) {
+            let dims = g.dims().to_vec();
             let n = g.shape().num_elements();
-            self.out.push((param.id, g.reshape([n])));
+            self.out.push((param.id, dims, g.reshape([n])));
         }
     }
 }

@@ -341,36 +341,53 @@ pub(crate) fn parameter_values<M: Module>(module: &M) -> HashMap<ParamId, (Vec<u
     collect.0
 }
 
-/// A checkpoint tensor: key, PyTorch shape, f32 values.
-pub(crate) type CheckpointTensor = (String, Vec<usize>, Vec<f32>);
+/// A tensor under its checkpoint key, in PyTorch layout, as f32 values.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NamedValues {
+    /// The checkpoint key.
+    pub key: String,
+    /// The PyTorch shape (`[d_out, …]` for linear and convolution weights).
+    pub shape: Vec<usize>,
+    /// Row-major values.
+    pub values: Vec<f32>,
+}
 
-/// The parameters of `module` under their checkpoint keys, in PyTorch layout (transposed
-/// weights turned back to `[d_out, …]`).
-pub(crate) fn collect_named<M: Module>(module: &M, names: &[NamedParam]) -> Result<Vec<CheckpointTensor>, Error> {
-    let mut values = parameter_values(module);
-    let mut out = Vec::with_capacity(names.len());
-    for named in names {
-        let (dims, v) = values
-            .remove(&named.id)
-            .ok_or_else(|| Error::invalid(named.key.clone(), "a parameter of the model being saved"))?;
-        if v.len() != dims.iter().product::<usize>() {
+impl NamedValues {
+    /// Values of the parameter `named` (Burn dims `dims`) turned into its PyTorch layout.
+    pub(crate) fn from_param(named: &NamedParam, dims: Vec<usize>, values: Vec<f32>) -> Result<Self, Error> {
+        if values.len() != dims.iter().product::<usize>() {
             return Err(Error::invalid(named.key.clone(), format!("f32 values for shape {dims:?}")));
         }
+        let key = named.key.clone();
         match &named.torch_shape {
-            Some(shape) => {
+            Some(shape) if dims.len() == 2 => {
                 let [d_in, d_out] = [dims[0], dims[1]];
-                let mut t = vec![0.0f32; v.len()];
+                let mut t = vec![0.0f32; values.len()];
                 for i in 0..d_in {
                     for o in 0..d_out {
-                        t[o * d_in + i] = v[i * d_out + o];
+                        t[o * d_in + i] = values[i * d_out + o];
                     }
                 }
-                out.push((named.key.clone(), shape.clone(), t));
+                Ok(Self { key, shape: shape.clone(), values: t })
             }
-            None => out.push((named.key.clone(), dims, v)),
+            Some(_) => Err(Error::invalid(key, format!("a transposed 2-D weight (found dims {dims:?})"))),
+            None => Ok(Self { key, shape: dims, values }),
         }
     }
-    Ok(out)
+}
+
+/// The parameters of `module` under their checkpoint keys, in PyTorch layout.
+pub(crate) fn collect_named<M: Module>(module: &M, names: &[NamedParam]) -> Result<Vec<NamedValues>, Error> {
+    let mut values = parameter_values(module);
+    names
+        .iter()
+        .map(|named| {
+            let (dims, v) = values
+                .remove(&named.id)
+                .ok_or_else(|| Error::invalid(named.key.clone(), "a parameter of the model being saved"))?;
+            NamedValues::from_param(named, dims, v)
+        })
+        .collect()
 }
 
 /// Writes `config.json` and `weights_file` (f32 safetensors) into `dir` (created if missing),
@@ -378,13 +395,13 @@ pub(crate) fn collect_named<M: Module>(module: &M, names: &[NamedParam]) -> Resu
 pub(crate) fn write_checkpoint(
     dir: &Path,
     weights_file: &str,
-    tensors: &[CheckpointTensor],
+    tensors: &[NamedValues],
     config: &serde_json::Value,
 ) -> Result<(), Error> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     let bytes: Vec<(String, Vec<usize>, Vec<u8>)> = tensors
         .iter()
-        .map(|(k, shape, v)| (k.clone(), shape.clone(), v.iter().flat_map(|x| x.to_le_bytes()).collect()))
+        .map(|t| (t.key.clone(), t.shape.clone(), t.values.iter().flat_map(|x| x.to_le_bytes()).collect()))
         .collect();
     let views = bytes
         .iter()

@@ -214,3 +214,85 @@ fn malformed_draws_and_options_are_refused_by_name() {
     let e = trainer.step_with(&odd, &fixed_draws(&device)).unwrap_err().to_string();
     assert!(e.contains("batch.domains"), "{e}");
 }
+
+/// One training step against the PyTorch reference written from the authors' training script
+/// (`xtask/python/fixtures_diffusion.py train_step`, on diffusers' modules): loss, gradients
+/// of five named parameters, the clipped gradient norm and the parameters after AdamW.
+#[test]
+fn one_training_step_matches_the_pytorch_reference() {
+    let mut file = w3d_diffusion::SafetensorsFile::open(fixture("train_step.safetensors")).unwrap();
+    let read = |file: &mut w3d_diffusion::SafetensorsFile, key: &str| file.read_f32(key).unwrap().0;
+    for (name, device) in common::test_devices() {
+        let unet = UNet::from_dir(fixture("wonder3d_tiny").join("unet"), &device).unwrap();
+        let options = TrainOptions::for_stage(Stage::MixedDomain).with_learning_rate(1e-3).with_warmup_steps(0);
+        let mut trainer = Trainer::new(unet, scheduler(), options).unwrap();
+        let d = trainer.device();
+        let batch = TrainBatch {
+            latents: common::tensor(&mut file, "latents", &d),
+            condition_latents: common::tensor(&mut file, "condition_latents", &d),
+            image_embeddings: common::tensor(&mut file, "image_embeddings", &d),
+            class_labels: Some(common::tensor(&mut file, "class_labels", &d)),
+            domains: 2,
+        };
+        let draws = StepDraws {
+            timesteps: read(&mut file, "group_timesteps").iter().map(|&t| t as usize).collect(),
+            noise: common::tensor(&mut file, "noise", &d),
+            condition_drops: vec![ConditionDrop::Keep, ConditionDrop::ClipAndImage],
+        };
+        let (loss, grads) = trainer.gradients(&batch, &draws).unwrap();
+        let expected_loss = read(&mut file, "loss")[0];
+        let rel = ((loss - expected_loss) / expected_loss).abs();
+        eprintln!("{name}: loss {loss} vs {expected_loss} (relative {rel:.2e})");
+        assert!(rel < 1e-5, "{name}: loss {loss} vs PyTorch {expected_loss}");
+        for key in [
+            "conv_in.weight",
+            "down_blocks.0.attentions.0.transformer_blocks.0.attn1.to_q.weight",
+            "down_blocks.0.attentions.0.transformer_blocks.0.attn_joint_mid.to_k.weight",
+            "class_embedding.linear_1.weight",
+            "conv_out.weight",
+        ] {
+            let ours = grads.iter().find(|g| g.key == key).unwrap_or_else(|| panic!("{name}: no gradient for {key}"));
+            let (expected, shape) = file.read_f32(&format!("grad.{key}")).unwrap();
+            assert_eq!(ours.shape, shape, "{name}: {key} gradient shape");
+            let scale = expected.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            let worst = ours.values.iter().zip(&expected).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+            eprintln!("{name}: grad {key}: max |Δ| {worst:.2e} of max |g| {scale:.2e}");
+            assert!(worst <= 1e-4 * scale, "{name}: gradient of {key} differs by {worst} (scale {scale})");
+        }
+        let log = trainer.step_with(&batch, &draws).unwrap();
+        let expected_norm = read(&mut file, "grad_norm")[0];
+        let norm = log.grad_norm.unwrap();
+        assert!(((norm - expected_norm) / expected_norm).abs() < 1e-4, "{name}: grad norm {norm} vs {expected_norm}");
+        let after = params_by_key(&trainer.inference_unet());
+        for key in [
+            "conv_in.weight",
+            "down_blocks.0.attentions.0.transformer_blocks.0.attn1.to_q.weight",
+            "down_blocks.0.attentions.0.transformer_blocks.0.attn_joint_mid.to_k.weight",
+            "class_embedding.linear_1.weight",
+            "conv_out.weight",
+        ] {
+            // AdamW's first step moves each parameter by lr·g/(|g| + ε): where |g| is near
+            // ε = 1e-8 the step turns f32 rounding of the gradient (≈1e-8 here) into a visible
+            // difference, so the 1e-6 bound applies where |g| ≥ 1e-6 (100 ε) and the rest is
+            // bounded by the step itself (2·lr).
+            let expected = read(&mut file, &format!("after.{key}"));
+            let reference_grad = read(&mut file, &format!("grad.{key}"));
+            let (mut worst, mut worst_ill, mut ill) = (0.0f32, 0.0f32, 0usize);
+            for ((a, b), g) in after[key].iter().zip(&expected).zip(&reference_grad) {
+                let diff = (a - b).abs();
+                if g.abs() >= 1e-6 {
+                    worst = worst.max(diff);
+                } else {
+                    ill += 1;
+                    worst_ill = worst_ill.max(diff);
+                }
+            }
+            eprintln!(
+                "{name}: after AdamW {key}: max |Δ| {worst:.2e} where |g| ≥ 1e-6; {ill} of {} with |g| < 1e-6: max |Δ| {worst_ill:.2e}",
+                expected.len()
+            );
+            assert!(worst <= 1e-6, "{name}: {key} after one AdamW step differs by {worst}");
+            assert!(worst_ill <= 2e-3, "{name}: {key} moved by more than one step ({worst_ill})");
+        }
+    }
+}
