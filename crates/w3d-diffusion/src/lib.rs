@@ -40,6 +40,7 @@ pub mod multiview;
 pub mod nn;
 pub mod scheduler;
 pub mod train;
+pub mod training_set;
 pub mod unet;
 pub mod vae;
 pub mod weights;
@@ -52,7 +53,7 @@ pub use config::{
 };
 pub use multiview::{
     CameraType, Conditioning, Domain, GeneratedViews, MultiViewPipeline, SampleOptions, prepare_input, quantize_u8,
-    switcher_labels,
+    switcher_labels, task_labels,
 };
 pub use scheduler::{
     DdimInverseScheduler, DdimScheduler, DpmSolverMultistepScheduler, Prediction, SamplerKind,

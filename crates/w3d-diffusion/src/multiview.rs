@@ -127,6 +127,13 @@ pub fn switcher_labels(domain: Domain, camera: CameraType, input_dim: usize) -> 
         Domain::Normal => [1.0, 0.0],
         Domain::Colour => [0.0, 1.0],
     };
+    task_labels(task, camera, input_dim)
+}
+
+/// As [`switcher_labels`] with the task switch given as its two values: `[1, 0]` normal,
+/// `[0, 1]` colour, `[0, 0]` for training without the domain switcher (stage 1), `[1, 1]`
+/// mask in the authors' code.
+pub fn task_labels(task: [f32; 2], camera: CameraType, input_dim: usize) -> Result<Vec<f32>, Error> {
     let camera_switch = match (input_dim, camera) {
         (14, CameraType::Orthographic) => vec![0.0, 1.0],
         (14, CameraType::Perspective) => vec![1.0, 0.0],

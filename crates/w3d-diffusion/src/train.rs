@@ -340,6 +340,12 @@ impl DiffusionObjective {
                 format!("a batch of domains × objects × {views} views (found {n} images for {domains} domains)"),
             ));
         }
+        if unet.config().cd_attention_mid && domains != 2 {
+            return Err(Error::invalid(
+                "batch.domains",
+                "2 for a UNet with cross-domain attention (cd_attention_mid: it pairs the normal and colour halves)",
+            ));
+        }
         let groups = n / views;
         let objects = groups / domains;
         if batch.condition_latents.dims() != [n, c, h, w] {

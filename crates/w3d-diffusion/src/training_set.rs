@@ -1,0 +1,381 @@
+//! The training set `wonder3d dataset` writes (layout in `docs/training.md`), read back as the
+//! model's images, encoded once by the frozen VAE and CLIP encoder, and assembled into
+//! [`TrainBatch`]es for each stage.
+//!
+//! Each sample is a view-set folder (the rotated object's 6 views: normals in the front
+//! camera's frame, colour, mask) plus its camera type and background in `dataset.json`. The
+//! model images are made here, at load time, so input and targets share one background:
+//! - colour: `rgb · mask + bg · (1 − mask)`;
+//! - normal: `(n + 1) / 2 · mask + bg · (1 − mask)` (the encoding inference decodes);
+//! - mask: the mask in every channel (white object on black), whatever the background.
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+use burn::tensor::{Device, Tensor, TensorData};
+use serde::Deserialize;
+use w3d_core::{Error, Image, ViewSet};
+
+use crate::multiview::{CameraType, MultiViewPipeline, NUM_VIEWS, task_labels};
+use crate::train::{Stage, TrainBatch};
+
+/// The `format` field of `dataset.json`.
+pub const FORMAT: &str = "wonder3d-rs dataset";
+
+/// Largest `dataset.json` read (bytes).
+const MAX_INDEX_BYTES: u64 = 64 << 20;
+
+/// The view names of the rig, in the order of the model's views.
+pub const VIEW_NAMES: [&str; NUM_VIEWS] = ["front", "front_right", "right", "back", "left", "front_left"];
+
+/// The background a sample's images are composited on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Background {
+    /// 1.0 in every channel.
+    White,
+    /// 0.0.
+    Black,
+    /// 0.5.
+    Grey,
+}
+
+impl Background {
+    /// The channel value.
+    pub fn value(self) -> f32 {
+        match self {
+            Background::White => 1.0,
+            Background::Black => 0.0,
+            Background::Grey => 0.5,
+        }
+    }
+}
+
+/// The domain of a group of views in a training batch.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum TrainDomain {
+    /// Normal maps.
+    Normal,
+    /// Colour images.
+    Colour,
+    /// Masks (stage 1 only).
+    Mask,
+}
+
+impl TrainDomain {
+    fn index(self) -> usize {
+        match self {
+            TrainDomain::Normal => 0,
+            TrainDomain::Colour => 1,
+            TrainDomain::Mask => 2,
+        }
+    }
+
+    /// The domain switcher's task label: `[1, 0]` normal, `[0, 1]` colour; stage 1 trains
+    /// without switchers (`[0, 0]` for every domain).
+    pub fn task(self, stage: Stage) -> [f32; 2] {
+        match (stage, self) {
+            (Stage::MultiDomain, _) => [0.0, 0.0],
+            (_, TrainDomain::Normal) => [1.0, 0.0],
+            (_, TrainDomain::Colour | TrainDomain::Mask) => [0.0, 1.0],
+        }
+    }
+}
+
+/// One sample of the set.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrainingSample {
+    /// Folder name under the set's root.
+    pub id: String,
+    /// Camera type of the views.
+    pub camera: CameraType,
+    /// Background of the model images.
+    pub background: Background,
+}
+
+#[derive(Deserialize)]
+struct Index {
+    format: String,
+    version: u32,
+    size: u32,
+    views: Vec<String>,
+    samples: Vec<IndexSample>,
+}
+
+#[derive(Deserialize)]
+struct IndexSample {
+    id: String,
+    camera: String,
+    background: String,
+}
+
+/// A training set on disk.
+#[derive(Clone, Debug)]
+pub struct TrainingSet {
+    dir: PathBuf,
+    size: u32,
+    samples: Vec<TrainingSample>,
+}
+
+/// The model images of one sample: 6 views per domain, 3 channels, values in `[0, 1]`.
+#[derive(Clone, Debug)]
+pub struct SampleImages {
+    /// Camera type.
+    pub camera: CameraType,
+    /// Normal, colour and mask images, 6 each, in [`TrainDomain`] order.
+    pub domains: [Vec<Image>; 3],
+}
+
+impl TrainingSet {
+    /// Reads `dir/dataset.json` and checks it: format and version, the 6 view names in rig
+    /// order, unique sample ids naming folders inside `dir`, known camera types and
+    /// backgrounds. Images are read later, by [`TrainingSet::images`].
+    pub fn open(dir: impl AsRef<Path>) -> Result<Self, Error> {
+        let dir = dir.as_ref().to_path_buf();
+        let path = dir.join("dataset.json");
+        let len = std::fs::metadata(&path).map_err(|e| Error::io(&path, e))?.len();
+        if len > MAX_INDEX_BYTES {
+            return Err(Error::format(&path, "size", format!("at most {MAX_INDEX_BYTES} bytes (found {len})")));
+        }
+        let text = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
+        let index: Index = serde_json::from_slice(&text)
+            .map_err(|e| Error::format(&path, "dataset.json", format!("the training-set index ({e})")))?;
+        if index.format != FORMAT || index.version != 1 {
+            return Err(Error::format(
+                &path,
+                "format",
+                format!("{FORMAT:?} version 1 (found {:?} version {})", index.format, index.version),
+            ));
+        }
+        if index.views != VIEW_NAMES {
+            return Err(Error::format(&path, "views", format!("{VIEW_NAMES:?} (found {:?})", index.views)));
+        }
+        if !(8..=4096).contains(&index.size) {
+            return Err(Error::format(&path, "size", format!("8 to 4096 pixels (found {})", index.size)));
+        }
+        if index.samples.is_empty() {
+            return Err(Error::format(&path, "samples", "at least one sample"));
+        }
+        let mut seen = BTreeSet::new();
+        let mut samples = Vec::with_capacity(index.samples.len());
+        for (i, s) in index.samples.into_iter().enumerate() {
+            let field = |name: &str| format!("samples[{i}].{name}");
+            let safe = !s.id.is_empty()
+                && s.id != "."
+                && s.id != ".."
+                && !s.id.contains(['/', '\\'])
+                && s.id.chars().all(|c| !c.is_control());
+            if !safe {
+                return Err(Error::format(
+                    &path,
+                    field("id"),
+                    format!("a folder name inside the set (found {:?})", s.id),
+                ));
+            }
+            if !seen.insert(s.id.clone()) {
+                return Err(Error::format(&path, field("id"), format!("a unique id ({:?} repeats)", s.id)));
+            }
+            let camera = s.camera.parse::<CameraType>().map_err(|_| {
+                Error::format(&path, field("camera"), format!("\"ortho\" or \"persp\" (found {:?})", s.camera))
+            })?;
+            let background = match s.background.as_str() {
+                "white" => Background::White,
+                "black" => Background::Black,
+                "grey" | "gray" => Background::Grey,
+                other => {
+                    return Err(Error::format(
+                        &path,
+                        field("background"),
+                        format!("\"white\", \"black\" or \"grey\" (found {other:?})"),
+                    ));
+                }
+            };
+            if !dir.join(&s.id).is_dir() {
+                return Err(Error::format(
+                    &path,
+                    field("id"),
+                    format!("a sample folder {}", dir.join(&s.id).display()),
+                ));
+            }
+            samples.push(TrainingSample { id: s.id, camera, background });
+        }
+        Ok(Self { dir, size: index.size, samples })
+    }
+
+    /// The set's folder.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Side of the images in pixels.
+    pub fn size(&self) -> u32 {
+        self.size
+    }
+
+    /// The samples.
+    pub fn samples(&self) -> &[TrainingSample] {
+        &self.samples
+    }
+
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        self.samples.len()
+    }
+
+    /// Whether the set is empty (never, once opened).
+    pub fn is_empty(&self) -> bool {
+        self.samples.is_empty()
+    }
+
+    /// The model images of sample `index` (see the module docs), checked against the index:
+    /// the rig of its camera type, the set's size, colour present in every view.
+    pub fn images(&self, index: usize) -> Result<SampleImages, Error> {
+        let sample = self.samples.get(index).ok_or_else(|| {
+            Error::invalid("sample", format!("an index below {} (found {index})", self.samples.len()))
+        })?;
+        let folder = self.dir.join(&sample.id);
+        let set = ViewSet::load(&folder)?;
+        let expected = sample.camera.rig();
+        if set.rig().name != expected.name {
+            return Err(Error::format(
+                folder.join("cameras.json"),
+                "name",
+                format!("the rig {:?} of the sample's camera type (found {:?})", expected.name, set.rig().name),
+            ));
+        }
+        let bg = sample.background.value();
+        let mut domains: [Vec<Image>; 3] = Default::default();
+        for view in set.views() {
+            let (w, h) = (view.mask.width(), view.mask.height());
+            if (w, h) != (self.size, self.size) {
+                return Err(Error::format(
+                    folder.join(format!("mask_{}.png", view.name)),
+                    "size",
+                    format!("{0}×{0} as dataset.json says (found {w}×{h})", self.size),
+                ));
+            }
+            let colour = view.colour.as_ref().ok_or_else(|| {
+                Error::format(
+                    folder.join(format!("colour_{}.png", view.name)),
+                    "colour",
+                    "a colour image for every view",
+                )
+            })?;
+            let mask = view.mask.data();
+            let composite = |values: &[f32], encode: fn(f32) -> f32| -> Result<Image, Error> {
+                let data = values
+                    .chunks_exact(3)
+                    .zip(mask)
+                    .flat_map(|(px, &m)| px.iter().map(move |&v| encode(v) * m + bg * (1.0 - m)).collect::<Vec<_>>())
+                    .collect();
+                Image::new(w, h, 3, data)
+            };
+            domains[0].push(composite(view.normal.data(), |n| (n + 1.0) * 0.5)?);
+            domains[1].push(composite(colour.data(), |c| c)?);
+            domains[2].push(Image::new(w, h, 3, mask.iter().flat_map(|&m| [m; 3]).collect())?);
+        }
+        Ok(SampleImages { camera: sample.camera, domains })
+    }
+}
+
+/// One sample encoded by the frozen VAE and CLIP encoder of a pipeline: what training needs
+/// of it, on the device it was encoded on.
+#[derive(Clone, Debug)]
+pub struct EncodedSample {
+    /// Camera type.
+    pub camera: CameraType,
+    /// Latents (VAE mean × scaling factor) of the 6 views, `[6, c, h, w]`, per
+    /// [`TrainDomain`].
+    pub latents: [Tensor<4>; 3],
+    /// CLIP image embeddings `[1, d]` of each domain's front view (stage 1 conditions on the
+    /// front view of the domain it generates; stages 2 and 3 on the colour one).
+    pub front_embeds: [Tensor<2>; 3],
+}
+
+impl EncodedSample {
+    /// Encodes `images` with `pipeline`'s VAE and CLIP encoder on `device` (the images must
+    /// be the pipeline's size).
+    pub fn encode(pipeline: &MultiViewPipeline, images: &SampleImages, device: &Device) -> Result<Self, Error> {
+        let mut latents = Vec::with_capacity(3);
+        let mut embeds = Vec::with_capacity(3);
+        for views in &images.domains {
+            let mut per_view = Vec::with_capacity(NUM_VIEWS);
+            for (i, image) in views.iter().enumerate() {
+                let condition = pipeline.condition(image, device)?;
+                if i == 0 {
+                    embeds.push(condition.embeds);
+                }
+                per_view.push(condition.latent);
+            }
+            latents.push(Tensor::cat(per_view, 0));
+        }
+        let array = |v: Vec<Tensor<4>>| -> [Tensor<4>; 3] { v.try_into().expect("three domains") };
+        let embeds: [Tensor<2>; 3] = embeds.try_into().expect("three domains");
+        Ok(Self { camera: images.camera, latents: array(latents), front_embeds: embeds })
+    }
+
+    /// A copy on `device` (e.g. the trainer's autodiff device).
+    pub fn to_device(&self, device: &Device) -> Self {
+        Self {
+            camera: self.camera,
+            latents: self.latents.clone().map(|t| t.to_device(device)),
+            front_embeds: self.front_embeds.clone().map(|t| t.to_device(device)),
+        }
+    }
+}
+
+/// Assembles the batch of `stage` from `samples` (one object each): stage 3 takes both the
+/// normal and the colour views of every object (`domains` ignored); stages 1 and 2 take the
+/// views of `domains[i]` for object `i`. The condition is the colour front view, or in
+/// stage 1 the front view of the object's domain. `class_dim` is the UNet's
+/// `projection_class_embeddings_input_dim` (14 or 10).
+pub fn assemble_batch(
+    stage: Stage,
+    samples: &[&EncodedSample],
+    domains: &[TrainDomain],
+    class_dim: usize,
+) -> Result<TrainBatch, Error> {
+    if samples.is_empty() {
+        return Err(Error::invalid("samples", "at least one object"));
+    }
+    let groups: Vec<(usize, TrainDomain)> = match stage {
+        Stage::CrossDomain => (0..samples.len())
+            .map(|i| (i, TrainDomain::Normal))
+            .chain((0..samples.len()).map(|i| (i, TrainDomain::Colour)))
+            .collect(),
+        _ => {
+            if domains.len() != samples.len() {
+                return Err(Error::invalid(
+                    "domains",
+                    format!("one per object ({}, found {})", samples.len(), domains.len()),
+                ));
+            }
+            if stage == Stage::MixedDomain && domains.contains(&TrainDomain::Mask) {
+                return Err(Error::invalid("domains", "normal or colour in stage 2 (masks are a stage-1 domain)"));
+            }
+            domains.iter().copied().enumerate().collect()
+        }
+    };
+    let mut latents = Vec::with_capacity(groups.len());
+    let mut condition = Vec::with_capacity(groups.len());
+    let mut embeds = Vec::with_capacity(groups.len());
+    let mut labels = Vec::with_capacity(groups.len() * NUM_VIEWS * class_dim);
+    for &(object, domain) in &groups {
+        let s = samples[object];
+        latents.push(s.latents[domain.index()].clone());
+        let source = if stage == Stage::MultiDomain { domain.index() } else { TrainDomain::Colour.index() };
+        let front = s.latents[source].clone().narrow(0, 0, 1);
+        condition.push(front.repeat_dim(0, NUM_VIEWS));
+        let [_, d] = s.front_embeds[source].dims();
+        embeds.push(s.front_embeds[source].clone().reshape([1, 1, d]).repeat_dim(0, NUM_VIEWS));
+        labels.extend(task_labels(domain.task(stage), s.camera, class_dim)?);
+    }
+    let device = samples[0].latents[0].device();
+    let n = groups.len() * NUM_VIEWS;
+    Ok(TrainBatch {
+        latents: Tensor::cat(latents, 0),
+        condition_latents: Tensor::cat(condition, 0),
+        image_embeddings: Tensor::cat(embeds, 0),
+        class_labels: Some(Tensor::from_data(TensorData::new(labels, [n, class_dim]), &device)),
+        domains: if stage == Stage::CrossDomain { 2 } else { 1 },
+    })
+}

@@ -1,0 +1,163 @@
+//! The training-set reader: model images composited on the sample's background, encoded
+//! once, assembled into the batches of the three stages; malformed sets refused by name.
+
+mod common;
+
+use std::path::Path;
+
+use common::fixture;
+use w3d_core::{Image, ViewImages, ViewSet};
+use w3d_diffusion::train::Stage;
+use w3d_diffusion::training_set::{EncodedSample, TrainDomain, TrainingSet, assemble_batch};
+use w3d_diffusion::{CameraType, MultiViewPipeline};
+
+const SIZE: u32 = 32; // the tiny fixture model's image side (8 × the VAE's 4)
+
+/// A sphere's views: normals in the front camera frame rotated per view, a blue-to-red colour
+/// ramp, mask = the disc.
+fn sphere_views(camera: CameraType) -> ViewSet {
+    let rig = camera.rig();
+    let views = rig
+        .views
+        .iter()
+        .enumerate()
+        .map(|(k, view)| {
+            let (mut normal, mut colour, mut mask) = (Vec::new(), Vec::new(), Vec::new());
+            let azimuth = [0.0f32, 45.0, 90.0, 180.0, -90.0, -45.0][k].to_radians();
+            for y in 0..SIZE {
+                for x in 0..SIZE {
+                    let u = (x as f32 + 0.5) / SIZE as f32 * 2.0 - 1.0;
+                    let v = 1.0 - (y as f32 + 0.5) / SIZE as f32 * 2.0;
+                    let r2 = (u * u + v * v) / 0.36;
+                    if r2 < 1.0 {
+                        let (nx, ny, nz) = (u / 0.6, v / 0.6, (1.0 - r2).sqrt());
+                        // Camera frame of this view → the front camera's frame (rotation about +y).
+                        let (s, c) = azimuth.sin_cos();
+                        normal.extend([c * nx + s * nz, ny, -s * nx + c * nz]);
+                        colour.extend([0.5 + 0.5 * u, 0.3, 0.5 - 0.5 * u]);
+                        mask.push(1.0);
+                    } else {
+                        normal.extend([0.0; 3]);
+                        colour.extend([0.0; 3]);
+                        mask.push(0.0);
+                    }
+                }
+            }
+            ViewImages {
+                name: view.name.clone(),
+                normal: Image::new(SIZE, SIZE, 3, normal).unwrap(),
+                colour: Some(Image::new(SIZE, SIZE, 3, colour).unwrap()),
+                mask: Image::new(SIZE, SIZE, 1, mask).unwrap(),
+                depth: None,
+            }
+        })
+        .collect();
+    ViewSet::new(rig, views).unwrap()
+}
+
+fn write_set(dir: &Path, samples: &[(&str, CameraType, &str)]) {
+    let mut entries = Vec::new();
+    for (i, (id, camera, background)) in samples.iter().enumerate() {
+        sphere_views(*camera).save(dir.join(id)).unwrap();
+        let camera = if *camera == CameraType::Orthographic { "ortho" } else { "persp" };
+        entries.push(serde_json::json!({
+            "id": id, "source": "sphere", "sample": i, "camera": camera, "background": background,
+            "yaw_deg": 0.0, "pitch_deg": 0.0, "colouring": "mesh"
+        }));
+    }
+    let index = serde_json::json!({
+        "format": "wonder3d-rs dataset", "version": 1, "size": SIZE, "seed": 0,
+        "views": ["front", "front_right", "right", "back", "left", "front_left"],
+        "samples": entries,
+    });
+    std::fs::write(dir.join("dataset.json"), serde_json::to_vec_pretty(&index).unwrap()).unwrap();
+}
+
+#[test]
+fn model_images_share_the_samples_background() {
+    let dir = tempfile::tempdir().unwrap();
+    write_set(dir.path(), &[("a", CameraType::Orthographic, "black"), ("b", CameraType::Perspective, "grey")]);
+    let set = TrainingSet::open(dir.path()).unwrap();
+    assert_eq!((set.len(), set.size()), (2, SIZE));
+    let images = set.images(1).unwrap();
+    assert_eq!(images.camera, CameraType::Perspective);
+    let [normals, colours, masks] = &images.domains;
+    assert_eq!((normals.len(), colours.len(), masks.len()), (6, 6, 6));
+    // Corner pixel: background grey in colour and normal, black in the mask.
+    assert_eq!(colours[0].pixel(0, 0), [0.5, 0.5, 0.5]);
+    assert_eq!(normals[3].pixel(0, 0), [0.5, 0.5, 0.5]);
+    assert_eq!(masks[0].pixel(0, 0), [0.0, 0.0, 0.0]);
+    // Centre of the front view: a normal facing the camera encodes to ≈ (0.5, 0.5, 1).
+    let c = normals[0].pixel(SIZE / 2, SIZE / 2);
+    assert!((c[2] - 1.0).abs() < 0.02 && (c[0] - 0.5).abs() < 0.05, "front normal {c:?}");
+    assert_eq!(masks[0].pixel(SIZE / 2, SIZE / 2), [1.0, 1.0, 1.0]);
+    let black = set.images(0).unwrap();
+    assert_eq!(black.domains[1][0].pixel(0, 0), [0.0, 0.0, 0.0]);
+}
+
+#[test]
+fn batches_of_the_three_stages_have_the_authors_layout() {
+    let dir = tempfile::tempdir().unwrap();
+    write_set(dir.path(), &[("a", CameraType::Orthographic, "white"), ("b", CameraType::Perspective, "black")]);
+    let set = TrainingSet::open(dir.path()).unwrap();
+    let device = w3d_diffusion::default_device();
+    let pipeline = MultiViewPipeline::from_dir(fixture("wonder3d_tiny"), &device).unwrap();
+    let encoded: Vec<EncodedSample> =
+        (0..2).map(|i| EncodedSample::encode(&pipeline, &set.images(i).unwrap(), &device).unwrap()).collect();
+    let refs: Vec<&EncodedSample> = encoded.iter().collect();
+    let joint = assemble_batch(Stage::CrossDomain, &refs, &[], 14).unwrap();
+    assert_eq!(joint.latents.dims(), [24, 4, 8, 8]);
+    assert_eq!(joint.domains, 2);
+    assert_eq!(joint.image_embeddings.dims()[0], 24);
+    // Normal half first: image 0 is object a's normal front view, image 12 its colour front.
+    let same = |a: w3d_diffusion::Tensor<4>, b: w3d_diffusion::Tensor<4>| common::max_abs_diff(a, b) == 0.0;
+    assert!(same(joint.latents.clone().narrow(0, 0, 6), encoded[0].latents[0].clone()));
+    assert!(same(joint.latents.clone().narrow(0, 12, 6), encoded[0].latents[1].clone()));
+    // Stages 2 and 3 condition on the colour front view.
+    assert!(same(joint.condition_latents.clone().narrow(0, 0, 1), encoded[0].latents[1].clone().narrow(0, 0, 1)));
+    let labels = common::values(joint.class_labels.clone().unwrap());
+    // task switch sin values: columns 5, 6 (normal [1, 0]) for row 0, colour [0, 1] for row 12.
+    assert!((labels[5] - 1f32.sin()).abs() < 1e-6 && labels[6].abs() < 1e-6);
+    assert!(labels[12 * 14 + 5].abs() < 1e-6 && (labels[12 * 14 + 6] - 1f32.sin()).abs() < 1e-6);
+
+    let mixed = assemble_batch(Stage::MixedDomain, &refs, &[TrainDomain::Colour, TrainDomain::Normal], 14).unwrap();
+    assert_eq!((mixed.latents.dims()[0], mixed.domains), (12, 1));
+    assert!(same(mixed.latents.clone().narrow(0, 6, 6), encoded[1].latents[0].clone()));
+    let e = assemble_batch(Stage::MixedDomain, &refs, &[TrainDomain::Mask, TrainDomain::Normal], 14).unwrap_err();
+    assert!(e.to_string().contains("domains"), "{e}");
+
+    // Stage 1: no switcher (task [0, 0]); the condition is the front view of the same domain.
+    let multi = assemble_batch(Stage::MultiDomain, &refs, &[TrainDomain::Mask, TrainDomain::Normal], 14).unwrap();
+    assert!(same(multi.condition_latents.clone().narrow(0, 0, 1), encoded[0].latents[2].clone().narrow(0, 0, 1)));
+    assert!(same(multi.condition_latents.clone().narrow(0, 6, 1), encoded[1].latents[0].clone().narrow(0, 0, 1)));
+    let labels = common::values(multi.class_labels.unwrap());
+    assert!(labels[5].abs() < 1e-6 && labels[6].abs() < 1e-6, "stage 1 task label must be [0, 0]");
+}
+
+#[test]
+fn malformed_sets_are_refused_naming_the_field() {
+    let dir = tempfile::tempdir().unwrap();
+    write_set(dir.path(), &[("a", CameraType::Orthographic, "white")]);
+    let index = dir.path().join("dataset.json");
+    let original = std::fs::read_to_string(&index).unwrap();
+    for (from, to, field) in [
+        ("\"ortho\"", "\"fisheye\"", "samples[0].camera"),
+        ("\"white\"", "\"plaid\"", "samples[0].background"),
+        ("\"id\": \"a\"", "\"id\": \"../a\"", "samples[0].id"),
+        ("\"id\": \"a\"", "\"id\": \"missing\"", "samples[0].id"),
+        ("\"version\": 1", "\"version\": 7", "format"),
+        ("\"front_left\"", "\"top\"", "views"),
+    ] {
+        std::fs::write(&index, original.replace(from, to)).unwrap();
+        let e = TrainingSet::open(dir.path()).unwrap_err().to_string();
+        assert!(e.contains(field) && e.contains("dataset.json"), "{from} → {to}: {e}");
+    }
+    std::fs::write(&index, original.replace(&format!("\"size\": {SIZE}"), "\"size\": 64")).unwrap();
+    let set = TrainingSet::open(dir.path()).unwrap();
+    let e = set.images(0).unwrap_err().to_string();
+    assert!(e.contains("mask_front.png") && e.contains("64"), "{e}");
+    std::fs::write(&index, &original).unwrap();
+    std::fs::remove_file(dir.path().join("a").join("colour_back.png")).unwrap();
+    let e = TrainingSet::open(dir.path()).unwrap().images(0).unwrap_err().to_string();
+    assert!(e.contains("colour_back.png"), "{e}");
+}
