@@ -134,7 +134,7 @@ pub(crate) fn run_cases(data: &Path, size: u32, wanted: &dyn Fn(&str) -> bool) -
     Ok(runs)
 }
 
-/// [`score`] with a panic or an error recorded in the run instead of ending the bench.
+/// [`score_scaled`] with a panic or an error recorded in the run instead of ending the bench.
 fn checked_score(name: &str, case: &str, truth: &Mesh, scale: f32, views: &ViewSet) -> Run {
     match catch_unwind(AssertUnwindSafe(|| score_scaled(name, case, "ortho", truth, views, Preset::Default, scale))) {
         Ok(Ok(run)) => run,
