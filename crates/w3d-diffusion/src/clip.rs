@@ -5,6 +5,7 @@
 //! Out: image embeddings `[n, projection_dim]` (the projected, post-LayerNorm class token).
 
 use std::path::Path;
+use std::sync::Arc;
 
 use burn::module::Module;
 use burn::tensor::activation::{gelu, sigmoid};
@@ -13,7 +14,7 @@ use w3d_core::Error;
 
 use crate::config::ClipVisionConfig;
 use crate::nn::{LayerNorm, Linear, multi_head_attention};
-use crate::weights::{Init, ParamSource, SafetensorsFile};
+use crate::weights::{Init, NamedParam, ParamSource, SafetensorsFile};
 
 /// Per-channel RGB mean of CLIP's normalisation (pixels in `[0, 1]`).
 #[allow(clippy::excessive_precision)] // the published constants, digit for digit
@@ -47,6 +48,8 @@ pub struct ClipVision {
     visual_projection: Linear,
     #[module(skip)]
     config: ClipVisionConfig,
+    #[module(skip)]
+    names: Arc<Vec<NamedParam>>,
 }
 
 impl ClipVision {
@@ -56,7 +59,8 @@ impl ClipVision {
         let mut file = SafetensorsFile::open(weights)?;
         let mut p = ParamSource::from_file(&mut file, str::to_string, device);
         p.ignore(|k| k == "vision_model.embeddings.position_ids");
-        let model = Self::build(config, &mut p);
+        let mut model = Self::build(config, &mut p);
+        model.names = Arc::new(p.take_names());
         p.finish()?;
         Ok(model)
     }
@@ -72,7 +76,21 @@ impl ClipVision {
     /// `config` with seeded random weights.
     pub fn random(config: &ClipVisionConfig, seed: u64, device: &Device) -> Result<Self, Error> {
         config.validate()?;
-        Ok(Self::build(config, &mut ParamSource::random(seed, device)))
+        let mut p = ParamSource::random(seed, device);
+        let mut model = Self::build(config, &mut p);
+        model.names = Arc::new(p.take_names());
+        Ok(model)
+    }
+
+    /// Writes `config.json` and `model.safetensors` (f32, transformers keys) into `dir`, the
+    /// `image_encoder/` folder of a checkpoint ([`ClipVision::from_dir`] reads it back).
+    pub fn save(&self, dir: impl AsRef<Path>) -> Result<(), Error> {
+        let tensors = crate::weights::collect_named(self, &self.names)?;
+        let config = crate::weights::config_json(
+            &self.config,
+            &[("model_type", "clip_vision_model"), ("architectures", "CLIPVisionModelWithProjection")],
+        )?;
+        crate::weights::write_checkpoint(dir.as_ref(), "model.safetensors", &tensors, &config)
     }
 
     /// The config this model was built from.
@@ -125,6 +143,7 @@ impl ClipVision {
             post_layernorm,
             visual_projection,
             config: c.clone(),
+            names: Arc::default(),
         }
     }
 

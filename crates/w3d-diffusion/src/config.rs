@@ -607,7 +607,7 @@ fn default_three() -> usize {
 
 /// `AutoencoderKL` config (diffusers `vae/config.json`). Images are `[-1, 1]`, latents are
 /// `latent_channels` wide and `2^(levels-1)` times smaller.
-#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 pub struct VaeConfig {
     /// Image channels in (3).
     #[serde(default = "default_three")]
@@ -730,7 +730,7 @@ fn default_quick_gelu() -> String {
 /// `CLIPVisionConfig` (transformers `image_encoder/config.json` of a
 /// `CLIPVisionModelWithProjection`). Images are `image_size²` pixels, cut into `patch_size²`
 /// patches.
-#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 pub struct ClipVisionConfig {
     /// Token width.
     #[serde(default = "default_clip_hidden")]
@@ -845,7 +845,7 @@ fn default_leading() -> String {
 
 /// `DDIMScheduler` / `DDIMInverseScheduler` config (diffusers `scheduler/scheduler_config.json`).
 /// Timesteps are integer training steps in `[0, num_train_timesteps)`.
-#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
 pub struct SchedulerConfig {
     /// Training timesteps T.
     #[serde(default = "default_train_steps")]

@@ -421,6 +421,55 @@ impl MultiViewPipeline {
         &self.unet
     }
 
+    /// The VAE.
+    pub fn vae(&self) -> &Vae {
+        &self.vae
+    }
+
+    /// The CLIP image encoder.
+    pub fn clip(&self) -> &ClipVision {
+        &self.clip
+    }
+
+    /// The noise-schedule config.
+    pub fn scheduler(&self) -> &SchedulerConfig {
+        &self.scheduler
+    }
+
+    /// The models and the schedule, taken apart (e.g. to train the UNet and reassemble).
+    pub fn into_parts(self) -> (UNet, Vae, ClipVision, SchedulerConfig) {
+        (self.unet, self.vae, self.clip, self.scheduler)
+    }
+
+    /// Writes the pipeline as a model directory [`MultiViewPipeline::from_dir`] (and the
+    /// authors' diffusers-based code) reads: `unet/`, `vae/`, `image_encoder/` (config + f32
+    /// safetensors each), `scheduler/scheduler_config.json` and `model_index.json`. The folder
+    /// is written whole into a staging folder and then put in place
+    /// (`w3d_core::io::write_dir_atomic`), replacing an existing `dir`, so an interrupted save
+    /// never leaves a partial model.
+    pub fn save(&self, dir: impl AsRef<Path>) -> Result<(), Error> {
+        w3d_core::io::write_dir_atomic(dir, |staging| {
+            self.unet.save(staging.join("unet"))?;
+            self.vae.save(staging.join("vae"))?;
+            self.clip.save(staging.join("image_encoder"))?;
+            let scheduler = crate::weights::config_json(&self.scheduler, &[("_class_name", "DDIMScheduler")])?;
+            let scheduler_dir = staging.join("scheduler");
+            std::fs::create_dir_all(&scheduler_dir).map_err(|e| Error::io(&scheduler_dir, e))?;
+            let json = |v: &serde_json::Value| serde_json::to_vec_pretty(v).unwrap_or_default();
+            let scheduler_path = scheduler_dir.join("scheduler_config.json");
+            std::fs::write(&scheduler_path, json(&scheduler)).map_err(|e| Error::io(&scheduler_path, e))?;
+            let index = serde_json::json!({
+                "_class_name": "MVDiffusionImagePipeline",
+                "unet": ["mvdiffusion.models.unet_mv2d_condition", "UNetMV2DConditionModel"],
+                "vae": ["diffusers", "AutoencoderKL"],
+                "image_encoder": ["transformers", "CLIPVisionModelWithProjection"],
+                "scheduler": ["diffusers", "DDIMScheduler"],
+            });
+            let index_path = staging.join("model_index.json");
+            std::fs::write(&index_path, json(&index)).map_err(|e| Error::io(&index_path, e))
+        })
+    }
+
     /// Side of the model's square images in pixels (`sample_size` × the VAE downscale: 256).
     pub fn image_size(&self) -> usize {
         self.image_size

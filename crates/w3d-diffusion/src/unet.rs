@@ -123,11 +123,7 @@ impl UNet {
         let dir = dir.as_ref();
         let tensors = crate::weights::collect_named(self, &self.names)?;
         let class = if self.config.num_views.is_some() { "UNetMV2DConditionModel" } else { "UNet2DConditionModel" };
-        let mut config = serde_json::to_value(&self.config)
-            .map_err(|e| Error::invalid("unet config", format!("a serialisable config ({e})")))?;
-        if let Some(map) = config.as_object_mut() {
-            map.insert("_class_name".into(), class.into());
-        }
+        let config = crate::weights::config_json(&self.config, &[("_class_name", class)])?;
         crate::weights::write_checkpoint(dir, "diffusion_pytorch_model.safetensors", &tensors, &config)
     }
 

@@ -3,6 +3,7 @@
 //! *before* the scaling factor (the diffusion model sees `latent * scaling_factor`).
 
 use std::path::Path;
+use std::sync::Arc;
 
 use burn::module::Module;
 use burn::tensor::{Device, Tensor};
@@ -11,7 +12,7 @@ use w3d_core::Error;
 use crate::blocks::{Downsample, ResnetBlock, ResnetShape, Upsample};
 use crate::config::VaeConfig;
 use crate::nn::{Conv2d, GroupNorm, Linear, multi_head_attention};
-use crate::weights::{ParamSource, SafetensorsFile};
+use crate::weights::{NamedParam, ParamSource, SafetensorsFile};
 
 /// GroupNorm epsilon used everywhere in the VAE.
 const VAE_EPS: f64 = 1e-6;
@@ -100,6 +101,8 @@ pub struct Vae {
     decoder_conv_out: Conv2d,
     #[module(skip)]
     config: VaeConfig,
+    #[module(skip)]
+    names: Arc<Vec<NamedParam>>,
 }
 
 impl Vae {
@@ -109,7 +112,8 @@ impl Vae {
         config.validate()?;
         let mut file = SafetensorsFile::open(weights)?;
         let mut p = ParamSource::from_file(&mut file, rename_legacy_vae_key, device);
-        let vae = Self::build(config, &mut p);
+        let mut vae = Self::build(config, &mut p);
+        vae.names = Arc::new(p.take_names());
         p.finish()?;
         Ok(vae)
     }
@@ -125,7 +129,18 @@ impl Vae {
     /// `config` with seeded random weights.
     pub fn random(config: &VaeConfig, seed: u64, device: &Device) -> Result<Self, Error> {
         config.validate()?;
-        Ok(Self::build(config, &mut ParamSource::random(seed, device)))
+        let mut p = ParamSource::random(seed, device);
+        let mut vae = Self::build(config, &mut p);
+        vae.names = Arc::new(p.take_names());
+        Ok(vae)
+    }
+
+    /// Writes `config.json` and `diffusion_pytorch_model.safetensors` (f32, diffusers keys)
+    /// into `dir`, the `vae/` folder of a checkpoint ([`Vae::from_dir`] reads it back).
+    pub fn save(&self, dir: impl AsRef<Path>) -> Result<(), Error> {
+        let tensors = crate::weights::collect_named(self, &self.names)?;
+        let config = crate::weights::config_json(&self.config, &[("_class_name", "AutoencoderKL")])?;
+        crate::weights::write_checkpoint(dir.as_ref(), "diffusion_pytorch_model.safetensors", &tensors, &config)
     }
 
     /// The config this model was built from.
@@ -194,6 +209,7 @@ impl Vae {
             decoder_norm_out,
             decoder_conv_out,
             config: c.clone(),
+            names: Arc::default(),
         }
     }
 

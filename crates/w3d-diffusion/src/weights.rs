@@ -391,7 +391,7 @@ pub(crate) fn collect_named<M: Module>(module: &M, names: &[NamedParam]) -> Resu
 }
 
 /// Writes `config.json` and `weights_file` (f32 safetensors) into `dir` (created if missing),
-/// each under a temporary name first and then renamed.
+/// both under temporary names first and then renamed.
 pub(crate) fn write_checkpoint(
     dir: &Path,
     weights_file: &str,
@@ -414,18 +414,20 @@ pub(crate) fn write_checkpoint(
         .map_err(|e| Error::invalid("checkpoint", format!("a serialisable set of tensors ({e})")))?;
     let config = serde_json::to_vec_pretty(config)
         .map_err(|e| Error::invalid("config", format!("a serialisable config ({e})")))?;
-    write_replacing(&dir.join(weights_file), &weights)?;
-    write_replacing(&dir.join("config.json"), &config)
+    let (weights_path, config_path) = (dir.join(weights_file), dir.join("config.json"));
+    w3d_core::io::write_atomic_all(&[(&weights_path, &weights), (&config_path, &config)])
 }
 
-/// Writes `bytes` to `path` through a temporary file in the same folder, then renames it.
-pub(crate) fn write_replacing(path: &Path, bytes: &[u8]) -> Result<(), Error> {
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    let tmp = path.with_file_name(format!(".{name}.partial-{}", std::process::id()));
-    let result = std::fs::write(&tmp, bytes).and_then(|()| std::fs::rename(&tmp, path));
-    if let Err(e) = result {
-        let _ = std::fs::remove_file(&tmp);
-        return Err(Error::io(path, e));
+/// `config` as a JSON object with `extra` fields added (class names a loader looks for; a
+/// value is written as a one-element list when the key is `architectures`).
+pub(crate) fn config_json<C: serde::Serialize>(config: &C, extra: &[(&str, &str)]) -> Result<serde_json::Value, Error> {
+    let mut value =
+        serde_json::to_value(config).map_err(|e| Error::invalid("config", format!("a serialisable config ({e})")))?;
+    if let Some(map) = value.as_object_mut() {
+        for (key, v) in extra {
+            let v = if *key == "architectures" { serde_json::json!([v]) } else { serde_json::json!(v) };
+            map.insert((*key).to_string(), v);
+        }
     }
-    Ok(())
+    Ok(value)
 }
