@@ -448,7 +448,12 @@ impl MultiViewPipeline {
     /// (`w3d_core::io::write_dir_atomic`), replacing an existing `dir`, so an interrupted save
     /// never leaves a partial model.
     pub fn save(&self, dir: impl AsRef<Path>) -> Result<(), Error> {
-        w3d_core::io::write_dir_atomic(dir, |staging| {
+        w3d_core::io::write_dir_atomic(dir, |staging| self.write_into(staging))
+    }
+
+    /// The files of [`MultiViewPipeline::save`], written into the existing folder `staging`.
+    pub(crate) fn write_into(&self, staging: &Path) -> Result<(), Error> {
+        {
             self.unet.save(staging.join("unet"))?;
             self.vae.save(staging.join("vae"))?;
             self.clip.save(staging.join("image_encoder"))?;
@@ -467,7 +472,7 @@ impl MultiViewPipeline {
             });
             let index_path = staging.join("model_index.json");
             std::fs::write(&index_path, json(&index)).map_err(|e| Error::io(&index_path, e))
-        })
+        }
     }
 
     /// Side of the model's square images in pixels (`sample_size` × the VAE downscale: 256).

@@ -766,3 +766,309 @@ impl ModuleMapper for AdamW<'_> {
         })
     }
 }
+
+/// The trainer-state file of a checkpoint folder (step, RNG, options).
+pub const STATE_FILE: &str = "trainer_state.json";
+/// The optimizer-moment file of a checkpoint folder.
+pub const OPTIMIZER_FILE: &str = "optimizer.safetensors";
+const STATE_FORMAT: &str = "wonder3d-rs trainer state";
+
+#[derive(serde::Serialize, serde::Deserialize)]
+struct SavedState {
+    format: String,
+    version: u32,
+    step: usize,
+    rng: u64,
+    stage: u8,
+    learning_rate: f64,
+    seed: u64,
+}
+
+impl Trainer {
+    /// Writes the optimizer moments ([`OPTIMIZER_FILE`]: `exp_avg.<key>` and
+    /// `exp_avg_sq.<key>`, flattened in the model's own layout) and the step, RNG and stage
+    /// ([`STATE_FILE`]) into the existing folder `dir`. Only between optimizer steps (not in
+    /// the middle of gradient accumulation).
+    pub fn write_state(&self, dir: &std::path::Path) -> Result<(), Error> {
+        if self.micro_batches != 0 {
+            return Err(Error::invalid(
+                "trainer state",
+                "a save between optimizer steps (micro-batches of an accumulated step are pending)",
+            ));
+        }
+        let mut tensors = Vec::with_capacity(2 * self.moments.len());
+        let mut keys: Vec<(&String, &ParamId)> = self.trainable.iter().map(|(id, (key, _))| (key, id)).collect();
+        keys.sort();
+        for (key, id) in keys {
+            let Some(m) = self.moments.get(id) else { continue };
+            for (prefix, t) in [("exp_avg", &m.first), ("exp_avg_sq", &m.second)] {
+                let values = t.clone().into_data().convert::<f32>().try_to_vec::<f32>().unwrap_or_default();
+                tensors.push(NamedValues { key: format!("{prefix}.{key}"), shape: vec![values.len()], values });
+            }
+        }
+        let state = SavedState {
+            format: STATE_FORMAT.into(),
+            version: 1,
+            step: self.step,
+            rng: self.rng,
+            stage: self.options.stage.number(),
+            learning_rate: self.options.learning_rate,
+            seed: self.options.seed,
+        };
+        let json = serde_json::to_value(&state).map_err(|e| Error::invalid("trainer state", e.to_string()))?;
+        crate::weights::write_checkpoint_named(dir, OPTIMIZER_FILE, &tensors, STATE_FILE, &json)
+    }
+
+    /// Restores what [`Trainer::write_state`] wrote in `dir`: step, RNG and the moments of
+    /// every trainable parameter (a missing or misshaped moment, or a state of another
+    /// stage, is an error naming it).
+    pub fn load_state(&mut self, dir: &std::path::Path) -> Result<(), Error> {
+        let path = dir.join(STATE_FILE);
+        let text = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
+        let state: SavedState = serde_json::from_slice(&text)
+            .map_err(|e| Error::format(&path, STATE_FILE, format!("a trainer state ({e})")))?;
+        if state.format != STATE_FORMAT || state.version != 1 {
+            return Err(Error::format(&path, "format", format!("{STATE_FORMAT:?} version 1")));
+        }
+        if state.stage != self.options.stage.number() {
+            return Err(Error::format(
+                &path,
+                "stage",
+                format!(
+                    "stage {} as this run (found {}; start a new run to change stage)",
+                    self.options.stage.number(),
+                    state.stage
+                ),
+            ));
+        }
+        let mut numel = HashMap::new();
+        struct Sizes<'a>(&'a mut HashMap<ParamId, usize>);
+        impl ModuleVisitor for Sizes<'_> {
+            fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+                self.0.insert(param.id, param.val().shape().num_elements());
+            }
+        }
+        self.unet.visit(&mut Sizes(&mut numel));
+        let opt_path = dir.join(OPTIMIZER_FILE);
+        let mut file = crate::weights::SafetensorsFile::open(&opt_path)?;
+        let device = self.device().inner();
+        let mut moments = HashMap::new();
+        if state.step > 0 {
+            for (id, (key, _)) in &self.trainable {
+                let n = numel.get(id).copied().unwrap_or(0);
+                let mut read = |prefix: &str| -> Result<Tensor<1>, Error> {
+                    let name = format!("{prefix}.{key}");
+                    let (values, _) = file.read_f32(&name)?;
+                    if values.len() != n {
+                        return Err(Error::format(&opt_path, name, format!("{n} values (found {})", values.len())));
+                    }
+                    Ok(Tensor::from_data(TensorData::new(values, [n]), &device))
+                };
+                moments.insert(*id, Moments { first: read("exp_avg")?, second: read("exp_avg_sq")? });
+            }
+        }
+        self.moments = moments;
+        self.accumulated.clear();
+        self.micro_batches = 0;
+        self.step = state.step;
+        self.rng = state.rng;
+        Ok(())
+    }
+
+    /// A uniform index below `n` from the trainer's random stream (sample and domain choices
+    /// of a run, so a resumed run draws what the uninterrupted one would).
+    pub fn draw_index(&mut self, n: usize) -> usize {
+        (self.next_u64() % n.max(1) as u64) as usize
+    }
+}
+
+/// Length and shape of a training run ([`run_training`]).
+#[derive(Clone, Debug, PartialEq)]
+#[non_exhaustive]
+pub struct RunOptions {
+    /// Optimizer steps to reach (counting steps done before a resume).
+    pub steps: usize,
+    /// Objects per micro-batch.
+    pub objects_per_batch: usize,
+    /// Write a checkpoint every this many optimizer steps (and at the end).
+    pub checkpoint_every: usize,
+}
+
+impl Default for RunOptions {
+    fn default() -> Self {
+        Self { steps: 1000, objects_per_batch: 1, checkpoint_every: 100 }
+    }
+}
+
+impl RunOptions {
+    /// Sets the number of optimizer steps.
+    pub fn with_steps(mut self, steps: usize) -> Self {
+        self.steps = steps;
+        self
+    }
+
+    /// Sets the objects per micro-batch.
+    pub fn with_objects_per_batch(mut self, objects: usize) -> Self {
+        self.objects_per_batch = objects;
+        self
+    }
+
+    /// Sets the checkpoint interval.
+    pub fn with_checkpoint_every(mut self, steps: usize) -> Self {
+        self.checkpoint_every = steps;
+        self
+    }
+}
+
+/// What a training run reports as it goes.
+#[derive(Clone, Debug)]
+pub enum RunEvent {
+    /// Samples encoded so far, of the total.
+    Encoded {
+        /// Done.
+        done: usize,
+        /// All.
+        total: usize,
+    },
+    /// A run picked up from its checkpoint at this optimizer step.
+    Resumed {
+        /// The step.
+        step: usize,
+    },
+    /// An optimizer step finished.
+    Step(StepLog),
+    /// A checkpoint was written after this optimizer step.
+    Checkpoint {
+        /// The step.
+        step: usize,
+    },
+}
+
+/// The checkpoint folder of a run's output folder: a model directory
+/// ([`crate::MultiViewPipeline::from_dir`]) plus [`STATE_FILE`] and [`OPTIMIZER_FILE`].
+pub const CHECKPOINT_DIR: &str = "checkpoint";
+/// The run's log: one JSON object per optimizer step (`step`, `loss`, `grad_norm`, `lr`,
+/// `seconds`).
+pub const LOG_FILE: &str = "train_log.jsonl";
+
+/// Trains the UNet of `pipeline` on `set` (`crate::training_set`), writing
+/// `out/checkpoint/` every `run.checkpoint_every` steps and at the end (atomically, model and
+/// optimizer state together) and one log line per optimizer step to `out/train_log.jsonl`.
+/// With `resume`, `out/checkpoint/` must exist: its model replaces `pipeline`'s UNet and its
+/// state the optimizer's, and the log keeps the lines up to its step; without, `out` must not
+/// hold a run already. Returns the trained pipeline.
+pub fn run_training(
+    pipeline: crate::MultiViewPipeline,
+    set: &crate::training_set::TrainingSet,
+    options: TrainOptions,
+    run: &RunOptions,
+    out: &std::path::Path,
+    resume: bool,
+    on_event: &mut dyn FnMut(RunEvent),
+) -> Result<crate::MultiViewPipeline, Error> {
+    use std::io::Write;
+
+    use crate::training_set::{EncodedSample, TrainDomain, assemble_batch};
+
+    if run.steps == 0 || run.objects_per_batch == 0 || run.checkpoint_every == 0 {
+        return Err(Error::invalid("run", "steps, objects_per_batch and checkpoint_every of at least 1"));
+    }
+    if set.size() as usize != pipeline.image_size() {
+        return Err(Error::format(
+            set.dir().join("dataset.json"),
+            "size",
+            format!("the model's image side {} (found {})", pipeline.image_size(), set.size()),
+        ));
+    }
+    let checkpoint = out.join(CHECKPOINT_DIR);
+    let log_path = out.join(LOG_FILE);
+    if resume && !checkpoint.join(STATE_FILE).is_file() {
+        return Err(Error::invalid(
+            "resume",
+            format!("a checkpoint to resume from ({} is missing)", checkpoint.join(STATE_FILE).display()),
+        ));
+    }
+    if !resume && (checkpoint.exists() || log_path.exists()) {
+        return Err(Error::invalid(
+            "out",
+            format!("a folder without a run in it ({} has one: resume it, or choose another folder)", out.display()),
+        ));
+    }
+    std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
+    let device = pipeline.unet().devices().into_iter().next().unwrap_or_default();
+    let mut encoded = Vec::with_capacity(set.len());
+    for i in 0..set.len() {
+        encoded.push(EncodedSample::encode(&pipeline, &set.images(i)?, &device)?);
+        on_event(RunEvent::Encoded { done: i + 1, total: set.len() });
+    }
+    let (unet, vae, clip, scheduler) = pipeline.into_parts();
+    let unet = if resume { crate::UNet::from_dir(checkpoint.join("unet"), &device)? } else { unet };
+    let class_dim = unet.config().projection_class_embeddings_input_dim.unwrap_or(0);
+    let mut trainer = Trainer::new(unet, scheduler.clone(), options)?;
+    let mut kept_log = Vec::new();
+    if resume {
+        trainer.load_state(&checkpoint)?;
+        if let Ok(text) = std::fs::read_to_string(&log_path) {
+            for line in text.lines() {
+                let step = serde_json::from_str::<serde_json::Value>(line)
+                    .ok()
+                    .and_then(|v| v.get("step").and_then(|s| s.as_u64()));
+                if step.is_some_and(|s| s as usize <= trainer.steps()) {
+                    kept_log.push(line.to_string());
+                }
+            }
+        }
+        on_event(RunEvent::Resumed { step: trainer.steps() });
+    }
+    let mut log_text = kept_log.join("\n");
+    if !log_text.is_empty() {
+        log_text.push('\n');
+    }
+    w3d_core::io::write_atomic_all(&[(&log_path, log_text.as_bytes())])?;
+    let mut log = std::fs::OpenOptions::new().append(true).open(&log_path).map_err(|e| Error::io(&log_path, e))?;
+    let train_device = trainer.device();
+    let encoded: Vec<EncodedSample> = encoded.iter().map(|s| s.to_device(&train_device)).collect();
+    let stage = trainer.options().stage;
+    let started = std::time::Instant::now();
+    let save = |trainer: &Trainer| -> Result<(), Error> {
+        let pipeline =
+            crate::MultiViewPipeline::new(trainer.inference_unet(), vae.clone(), clip.clone(), scheduler.clone())?;
+        w3d_core::io::write_dir_atomic(&checkpoint, |staging| {
+            pipeline.write_into(staging)?;
+            trainer.write_state(staging)
+        })
+    };
+    while trainer.steps() < run.steps {
+        let picked: Vec<usize> = (0..run.objects_per_batch).map(|_| trainer.draw_index(encoded.len())).collect();
+        let domains: Vec<TrainDomain> = picked
+            .iter()
+            .map(|_| match stage {
+                Stage::MultiDomain => {
+                    [TrainDomain::Normal, TrainDomain::Colour, TrainDomain::Mask][trainer.draw_index(3)]
+                }
+                _ => [TrainDomain::Normal, TrainDomain::Colour][trainer.draw_index(2)],
+            })
+            .collect();
+        let samples: Vec<&EncodedSample> = picked.iter().map(|&i| &encoded[i]).collect();
+        let batch = assemble_batch(stage, &samples, &domains, class_dim)?;
+        let step = trainer.step(&batch)?;
+        if !step.updated {
+            continue;
+        }
+        let line = serde_json::json!({
+            "step": step.step,
+            "loss": step.loss,
+            "grad_norm": step.grad_norm,
+            "lr": step.learning_rate,
+            "seconds": started.elapsed().as_secs_f64(),
+        });
+        writeln!(log, "{line}").map_err(|e| Error::io(&log_path, e))?;
+        let at = step.step;
+        on_event(RunEvent::Step(step));
+        if at % run.checkpoint_every == 0 || at == run.steps {
+            save(&trainer)?;
+            on_event(RunEvent::Checkpoint { step: at });
+        }
+    }
+    crate::MultiViewPipeline::new(trainer.inference_unet(), vae, clip, scheduler)
+}

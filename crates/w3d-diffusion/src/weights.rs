@@ -398,6 +398,17 @@ pub(crate) fn write_checkpoint(
     tensors: &[NamedValues],
     config: &serde_json::Value,
 ) -> Result<(), Error> {
+    write_checkpoint_named(dir, weights_file, tensors, "config.json", config)
+}
+
+/// As [`write_checkpoint`] with the JSON file named `json_file`.
+pub(crate) fn write_checkpoint_named(
+    dir: &Path,
+    weights_file: &str,
+    tensors: &[NamedValues],
+    json_file: &str,
+    config: &serde_json::Value,
+) -> Result<(), Error> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     let bytes: Vec<(String, Vec<usize>, Vec<u8>)> = tensors
         .iter()
@@ -414,7 +425,7 @@ pub(crate) fn write_checkpoint(
         .map_err(|e| Error::invalid("checkpoint", format!("a serialisable set of tensors ({e})")))?;
     let config = serde_json::to_vec_pretty(config)
         .map_err(|e| Error::invalid("config", format!("a serialisable config ({e})")))?;
-    let (weights_path, config_path) = (dir.join(weights_file), dir.join("config.json"));
+    let (weights_path, config_path) = (dir.join(weights_file), dir.join(json_file));
     w3d_core::io::write_atomic_all(&[(&weights_path, &weights), (&config_path, &config)])
 }
 

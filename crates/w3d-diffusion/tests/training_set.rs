@@ -161,3 +161,71 @@ fn malformed_sets_are_refused_naming_the_field() {
     let e = TrainingSet::open(dir.path()).unwrap().images(0).unwrap_err().to_string();
     assert!(e.contains("colour_back.png"), "{e}");
 }
+
+fn log_losses(out: &Path) -> Vec<(u64, f64)> {
+    std::fs::read_to_string(out.join(w3d_diffusion::train::LOG_FILE))
+        .unwrap()
+        .lines()
+        .map(|l| {
+            let v: serde_json::Value = serde_json::from_str(l).unwrap();
+            (v["step"].as_u64().unwrap(), v["loss"].as_f64().unwrap())
+        })
+        .collect()
+}
+
+/// A pipeline of the tiny fixture models with a fresh UNet without cross-domain attention
+/// (stages 1 and 2 train that one).
+fn stage_two_pipeline(device: &w3d_diffusion::Device) -> MultiViewPipeline {
+    let (unet, vae, clip, scheduler) =
+        MultiViewPipeline::from_dir(fixture("wonder3d_tiny"), device).unwrap().into_parts();
+    let mut config = unet.config().clone();
+    config.cd_attention_mid = false;
+    let unet = w3d_diffusion::UNet::random(&config, 3, device).unwrap();
+    MultiViewPipeline::new(unet, vae, clip, scheduler).unwrap()
+}
+
+#[test]
+fn a_resumed_run_continues_the_uninterrupted_one_exactly() {
+    use w3d_diffusion::train::{RunEvent, RunOptions, TrainOptions, run_training};
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    std::fs::create_dir(&data).unwrap();
+    write_set(&data, &[("a", CameraType::Orthographic, "white"), ("b", CameraType::Perspective, "grey")]);
+    let set = TrainingSet::open(&data).unwrap();
+    let device = w3d_diffusion::default_device();
+    let options =
+        TrainOptions::for_stage(Stage::MixedDomain).with_learning_rate(1e-3).with_warmup_steps(2).with_seed(5);
+    let run = RunOptions::default().with_steps(6).with_checkpoint_every(3).with_objects_per_batch(2);
+    let whole = dir.path().join("whole");
+    let mut steps = 0;
+    run_training(stage_two_pipeline(&device), &set, options.clone(), &run, &whole, false, &mut |e| {
+        if let RunEvent::Step(_) = e {
+            steps += 1;
+        }
+    })
+    .unwrap();
+    assert_eq!(steps, 6);
+    let expected = log_losses(&whole);
+    assert_eq!(expected.iter().map(|(s, _)| *s).collect::<Vec<_>>(), [1, 2, 3, 4, 5, 6]);
+    MultiViewPipeline::from_dir(whole.join("checkpoint"), &device).unwrap();
+
+    let split = dir.path().join("split");
+    let first = run.clone().with_steps(3);
+    run_training(stage_two_pipeline(&device), &set, options.clone(), &first, &split, false, &mut |_| {}).unwrap();
+    // A second fresh run into the same folder is refused; resuming continues it.
+    let e =
+        run_training(stage_two_pipeline(&device), &set, options.clone(), &run, &split, false, &mut |_| {}).unwrap_err();
+    assert!(e.to_string().contains("resume"), "{e}");
+    let mut resumed_at = None;
+    run_training(stage_two_pipeline(&device), &set, options.clone(), &run, &split, true, &mut |e| {
+        if let RunEvent::Resumed { step } = e {
+            resumed_at = Some(step);
+        }
+    })
+    .unwrap();
+    assert_eq!(resumed_at, Some(3));
+    assert_eq!(log_losses(&split), expected, "the resumed run's losses differ from the uninterrupted run's");
+    let missing = dir.path().join("nothing");
+    let e = run_training(stage_two_pipeline(&device), &set, options, &run, &missing, true, &mut |_| {}).unwrap_err();
+    assert!(e.to_string().contains("trainer_state.json"), "{e}");
+}
