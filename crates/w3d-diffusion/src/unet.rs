@@ -84,11 +84,8 @@ impl UNet {
     pub fn load(config: &UNetConfig, weights: impl AsRef<Path>, device: &Device) -> Result<Self, Error> {
         config.validate()?;
         let mut file = SafetensorsFile::open(weights)?;
-        let mut p = ParamSource::from_file(&mut file, rename_legacy_unet_key, device);
-        let mut unet = Self::build(config, &mut p)?;
-        unet.names = Arc::new(p.take_names());
-        p.finish()?;
-        Ok(unet)
+        let p = ParamSource::from_file(&mut file, rename_legacy_unet_key, device);
+        Self::build_checked(config, p)
     }
 
     /// Loads `config.json` and `diffusion_pytorch_model.safetensors` (or its `.fp16.safetensors`
@@ -105,6 +102,59 @@ impl UNet {
         let mut p = ParamSource::random(seed, device);
         let mut unet = Self::build(config, &mut p)?;
         unet.names = Arc::new(p.take_names());
+        Ok(unet)
+    }
+
+    /// This model with cross-domain attention added (`cd_attention_mid`, the start of stage
+    /// 3): every parameter is copied, and `attn_joint_mid` / `norm_joint_mid` are new —
+    /// seeded default initialisation with the output projection's weight zeroed, so the
+    /// model computes what it computed before apart from the new output bias.
+    pub fn with_cross_domain_attention(&self, seed: u64) -> Result<Self, Error> {
+        if self.config.cd_attention_mid {
+            return Err(Error::invalid(
+                "unet cd_attention_mid",
+                "false (the model has cross-domain attention already)",
+            ));
+        }
+        let mut config = self.config.clone();
+        config.cd_attention_mid = true;
+        let device = self.devices().into_iter().next().unwrap_or_default();
+        let values = crate::weights::collect_named(self, &self.names)?
+            .into_iter()
+            .map(|t| (t.key, (t.shape, t.values)))
+            .collect();
+        let p = ParamSource::from_values(values, &device).with_fresh(seed, |key| key.contains("joint_mid."));
+        Self::build_checked(&config, p)
+    }
+
+    /// Wonder3D's `from_pretrained_2d`: the multi-view model `config` (8 input channels,
+    /// projection class embedding, multi-view blocks, optionally cross-domain attention) from
+    /// a single-view Stable-Diffusion-image-variations UNet's weights (`diffusion_pytorch_model
+    /// .safetensors` of a diffusers `unet/` folder): `conv_in` keeps the 4 latent channels'
+    /// weights and gets zeros for the 4 image-latent channels; the class embedding and any
+    /// cross-domain attention are new (seeded default initialisation, the joint attention's
+    /// output weight zeroed); every other parameter must be in the file (the multi-view
+    /// attention reuses `attn1`).
+    pub fn from_pretrained_2d(
+        config: &UNetConfig,
+        weights: impl AsRef<Path>,
+        seed: u64,
+        device: &Device,
+    ) -> Result<Self, Error> {
+        config.validate()?;
+        let mut file = SafetensorsFile::open(weights)?;
+        let p = ParamSource::from_file(&mut file, rename_legacy_unet_key, device)
+            .with_fresh(seed, |key| {
+                key.starts_with("class_embedding.") || key.contains("joint_mid.") || key.contains("joint_last.")
+            })
+            .widening_conv_in();
+        Self::build_checked(config, p)
+    }
+
+    fn build_checked(config: &UNetConfig, mut p: ParamSource) -> Result<Self, Error> {
+        let mut unet = Self::build(config, &mut p)?;
+        unet.names = Arc::new(p.take_names());
+        p.finish()?;
         Ok(unet)
     }
 

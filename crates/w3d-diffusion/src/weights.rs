@@ -131,8 +131,53 @@ pub(crate) enum Init {
 }
 
 enum Source<'a> {
-    File { file: &'a mut SafetensorsFile, renamed: BTreeMap<String, String>, used: BTreeSet<String> },
-    Random { state: u64 },
+    File {
+        file: &'a mut SafetensorsFile,
+        renamed: BTreeMap<String, String>,
+        used: BTreeSet<String>,
+    },
+    Random {
+        state: u64,
+    },
+    /// Values in memory by key (another model's parameters, in PyTorch layout).
+    Values {
+        values: HashMap<String, (Vec<usize>, Vec<f32>)>,
+        used: BTreeSet<String>,
+    },
+}
+
+/// Seeded initialiser values (uniform ±1/√fan_in, or constant), advancing `state`.
+fn random_values(state: &mut u64, n: usize, init: Init) -> Vec<f32> {
+    match init {
+        Init::Ones => vec![1.0; n],
+        Init::Zeros => vec![0.0; n],
+        Init::Uniform { fan_in } => {
+            let bound = 1.0 / (fan_in.max(1) as f64).sqrt();
+            (0..n)
+                .map(|_| {
+                    *state ^= *state << 13;
+                    *state ^= *state >> 7;
+                    *state ^= *state << 17;
+                    let u = (*state >> 11) as f64 / (1u64 << 53) as f64;
+                    ((2.0 * u - 1.0) * bound) as f32
+                })
+                .collect()
+        }
+    }
+}
+
+/// `values` of a convolution weight `[o, c_found, k, k]` widened to `[o, c, k, k]` with zero
+/// input channels (the image-latent channels a 4-channel UNet gains).
+fn widen_channels(values: &[f32], found: &[usize], c: usize) -> Vec<f32> {
+    let (o, cf, kk) = (found[0], found[1], found[2] * found[3]);
+    let mut out = vec![0.0f32; o * c * kk];
+    for i in 0..o {
+        for j in 0..cf {
+            out[(i * c + j) * kk..(i * c + j + 1) * kk]
+                .copy_from_slice(&values[(i * cf + j) * kk..(i * cf + j + 1) * kk]);
+        }
+    }
+    out
 }
 
 /// Hands out parameters by diffusers key, from a file or from a seeded random initialiser,
@@ -144,7 +189,14 @@ pub(crate) struct ParamSource<'a> {
     wrong: Vec<String>,
     unreadable: Vec<String>,
     names: Vec<NamedParam>,
+    /// Keys a model may lack in the source, initialised fresh from this seeded state instead.
+    fresh: Option<(u64, FreshKeys<'a>)>,
+    /// Accept `conv_in.weight` with fewer input channels, widened with zeros.
+    widen_conv_in: bool,
 }
+
+/// Which keys a source may lack (see [`ParamSource::with_fresh`]).
+type FreshKeys<'a> = Box<dyn Fn(&str) -> bool + 'a>;
 
 /// Where one parameter of a built model lives in a diffusers / transformers checkpoint: its
 /// key and, for a weight held transposed (`[d_in, d_out]`), the PyTorch shape it is stored in.
@@ -171,6 +223,8 @@ impl<'a> ParamSource<'a> {
             wrong: Vec::new(),
             unreadable: Vec::new(),
             names: Vec::new(),
+            fresh: None,
+            widen_conv_in: false,
         }
     }
 
@@ -183,7 +237,59 @@ impl<'a> ParamSource<'a> {
             wrong: Vec::new(),
             unreadable: Vec::new(),
             names: Vec::new(),
+            fresh: None,
+            widen_conv_in: false,
         }
+    }
+
+    /// Parameters from `values` (key → PyTorch shape and values).
+    pub(crate) fn from_values(values: HashMap<String, (Vec<usize>, Vec<f32>)>, device: &Device) -> Self {
+        let mut p = Self::random(0, device);
+        p.source = Source::Values { values, used: BTreeSet::new() };
+        p
+    }
+
+    /// Keys for which `fresh` is true may be missing from the source: they get the seeded
+    /// random initialisation instead.
+    pub(crate) fn with_fresh(mut self, seed: u64, fresh: impl Fn(&str) -> bool + 'a) -> Self {
+        self.fresh = Some((seed ^ 0x5DEE_CE66_D1CE_4E5B, Box::new(fresh)));
+        self
+    }
+
+    /// Accepts a `conv_in.weight` with fewer input channels, widened with zeros.
+    pub(crate) fn widening_conv_in(mut self) -> Self {
+        self.widen_conv_in = true;
+        self
+    }
+
+    /// The fallback for a key the source lacks: fresh values when allowed, else recorded
+    /// as missing.
+    fn absent(&mut self, key: &str, shape: &[usize], init: Init) -> Option<Vec<f32>> {
+        match &mut self.fresh {
+            Some((state, fresh)) if fresh(key) => Some(random_values(state, shape.iter().product(), init)),
+            _ => {
+                self.missing.push(format!("{key} {shape:?}"));
+                None
+            }
+        }
+    }
+
+    /// Whether a stored shape `found` is accepted for `shape` (the 1×1-convolution form of a
+    /// linear weight, or a narrower `conv_in` when widening), with the values' fix-up.
+    fn accepts(&self, key: &str, shape: &[usize], found: &[usize]) -> Option<Option<usize>> {
+        let squeezed: &[usize] =
+            if found.len() == shape.len() + 2 && found.ends_with(&[1, 1]) { &found[..shape.len()] } else { found };
+        if squeezed == shape {
+            return Some(None);
+        }
+        let widen = self.widen_conv_in
+            && key == "conv_in.weight"
+            && found.len() == 4
+            && shape.len() == 4
+            && found[0] == shape[0]
+            && found[2..] == shape[2..]
+            && found[1] < shape[1];
+        widen.then(|| Some(shape[1]))
     }
 
     /// Values of `key` with `shape` (row-major f32), or `None` when the file lacks the key,
@@ -192,49 +298,43 @@ impl<'a> ParamSource<'a> {
     /// 400000 asks for 640 GB), and only the file's own, size-checked tensors are trusted.
     fn values(&mut self, key: &str, shape: &[usize], init: Init) -> Option<Vec<f32>> {
         let n: usize = shape.iter().product();
-        match &mut self.source {
-            Source::Random { state } => Some(match init {
-                Init::Ones => vec![1.0; n],
-                Init::Zeros => vec![0.0; n],
-                Init::Uniform { fan_in } => {
-                    let bound = 1.0 / (fan_in.max(1) as f64).sqrt();
-                    (0..n)
-                        .map(|_| {
-                            *state ^= *state << 13;
-                            *state ^= *state >> 7;
-                            *state ^= *state << 17;
-                            let u = (*state >> 11) as f64 / (1u64 << 53) as f64;
-                            ((2.0 * u - 1.0) * bound) as f32
-                        })
-                        .collect()
-                }
-            }),
+        let found = match &mut self.source {
+            Source::Random { state } => return Some(random_values(state, n, init)),
             Source::File { file, renamed, used } => {
                 let Some(file_key) = renamed.get(key).cloned() else {
-                    self.missing.push(format!("{key} {shape:?}"));
-                    return None;
+                    return self.absent(key, shape, init);
                 };
                 used.insert(file_key.clone());
-                let found = file.tensors[&file_key].shape.clone();
-                // Linear weights stored as 1x1 convolutions ([out, in, 1, 1]) are accepted.
-                let squeezed: Vec<usize> = if found.len() == shape.len() + 2 && found.ends_with(&[1, 1]) {
-                    found[..shape.len()].to_vec()
-                } else {
-                    found.clone()
+                file.tensors[&file_key].shape.clone()
+            }
+            Source::Values { values, used } => {
+                let Some((found, _)) = values.get(key) else {
+                    return self.absent(key, shape, init);
                 };
-                if squeezed != shape {
-                    self.wrong.push(format!("{key}: expected {shape:?}, found {found:?}"));
+                used.insert(key.to_string());
+                found.clone()
+            }
+        };
+        // Linear weights stored as 1x1 convolutions ([out, in, 1, 1]) are accepted.
+        let Some(widen) = self.accepts(key, shape, &found) else {
+            self.wrong.push(format!("{key}: expected {shape:?}, found {found:?}"));
+            return None;
+        };
+        let values = match &mut self.source {
+            Source::File { file, renamed, .. } => match file.read_f32(&renamed[key]) {
+                Ok((values, _)) => values,
+                Err(e) => {
+                    self.unreadable.push(format!("{key}: {e}"));
                     return None;
                 }
-                match file.read_f32(&file_key) {
-                    Ok((values, _)) => Some(values),
-                    Err(e) => {
-                        self.unreadable.push(format!("{key}: {e}"));
-                        None
-                    }
-                }
-            }
-        }
+            },
+            Source::Values { values, .. } => values.get(key).map(|(_, v)| v.clone()).unwrap_or_default(),
+            Source::Random { .. } => unreachable!("random sources returned above"),
+        };
+        Some(match widen {
+            Some(c) => widen_channels(&values, &found, c),
+            None => values,
+        })
     }
 
     /// A parameter tensor of `shape`. Where the file lacks it (an error `finish` reports
@@ -297,14 +397,20 @@ impl<'a> ParamSource<'a> {
     /// Ok if every requested key was present with the right shape and every file key was
     /// used; otherwise one error listing every missing, unexpected and misshaped key.
     pub(crate) fn finish(self) -> Result<(), Error> {
-        let Source::File { file, renamed, used } = self.source else {
-            return Ok(());
+        let (path, unexpected): (PathBuf, Vec<String>) = match self.source {
+            Source::Random { .. } => return Ok(()),
+            Source::File { file, renamed, used } => (
+                file.path().to_path_buf(),
+                renamed
+                    .iter()
+                    .filter(|(_, f)| !used.contains(*f))
+                    .map(|(name, f)| if name == f { f.clone() } else { format!("{f} (read as {name})") })
+                    .collect(),
+            ),
+            Source::Values { values, used } => {
+                (PathBuf::from("<source model>"), values.keys().filter(|k| !used.contains(*k)).cloned().collect())
+            }
         };
-        let unexpected: Vec<String> = renamed
-            .iter()
-            .filter(|(_, f)| !used.contains(*f))
-            .map(|(name, f)| if name == f { f.clone() } else { format!("{f} (read as {name})") })
-            .collect();
         if self.missing.is_empty() && self.wrong.is_empty() && unexpected.is_empty() && self.unreadable.is_empty() {
             return Ok(());
         }
@@ -319,7 +425,7 @@ impl<'a> ParamSource<'a> {
                 report.push_str(&format!("\n  {} {title}: {}", list.len(), list.join(", ")));
             }
         }
-        Err(Error::format(file.path(), "weights", report))
+        Err(Error::format(path, "weights", report))
     }
 }
 

@@ -326,3 +326,63 @@ fn a_saved_pipeline_loads_back_with_identical_models() {
     loaded.save(&out).unwrap();
     assert!(w3d_diffusion::MultiViewPipeline::from_dir(&out, &device).is_ok());
 }
+
+#[test]
+fn stage_three_starts_from_stage_two_with_a_silent_joint_attention() {
+    let device = w3d_diffusion::default_device();
+    let mut config = tiny_config();
+    config.cd_attention_mid = false;
+    let two = UNet::random(&config, 23, &device).unwrap();
+    let three = two.with_cross_domain_attention(5).unwrap();
+    assert!(three.config().cd_attention_mid);
+    let (before, after) = (params_by_key(&two), params_by_key(&three));
+    for (key, v) in &before {
+        assert_eq!(&after[key], v, "{key} changed when adding the joint attention");
+    }
+    let joint: Vec<&String> = after.keys().filter(|k| k.contains("joint_mid.")).collect();
+    assert!(!joint.is_empty() && after.len() == before.len() + joint.len());
+    for key in joint.iter().filter(|k| k.ends_with("to_out.0.weight")) {
+        assert!(after[*key].iter().all(|&w| w == 0.0), "{key} must start at zero");
+    }
+    assert!(three.with_cross_domain_attention(5).is_err(), "adding the joint attention twice must be refused");
+}
+
+#[test]
+fn from_pretrained_2d_widens_conv_in_and_adds_the_switcher_embedding() {
+    let device = w3d_diffusion::default_device();
+    // A single-view, 4-channel UNet of the tiny shape stands for SD image variations.
+    let mut sd = tiny_config();
+    sd.in_channels = 4;
+    sd.class_embed_type = None;
+    sd.projection_class_embeddings_input_dim = None;
+    sd.cd_attention_mid = false;
+    sd.num_views = None;
+    let source = UNet::random(&sd, 29, &device).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    source.save(dir.path()).unwrap();
+    let weights = dir.path().join("diffusion_pytorch_model.safetensors");
+    let mv = UNet::from_pretrained_2d(&tiny_config(), &weights, 3, &device).unwrap();
+    let (src, dst) = (params_by_key(&source), params_by_key(&mv));
+    let (w_src, w_dst) = (&src["conv_in.weight"], &dst["conv_in.weight"]);
+    let (out, k) = (32, 9);
+    for o in 0..out {
+        for c in 0..8 {
+            for i in 0..k {
+                let v = w_dst[(o * 8 + c) * k + i];
+                if c < 4 {
+                    assert_eq!(v, w_src[(o * 4 + c) * k + i]);
+                } else {
+                    assert_eq!(v, 0.0, "image-latent channels of conv_in start at zero");
+                }
+            }
+        }
+    }
+    let attn1 = "down_blocks.0.attentions.0.transformer_blocks.0.attn1.to_q.weight";
+    assert_eq!(src[attn1], dst[attn1]);
+    assert!(dst.contains_key("class_embedding.linear_1.weight"));
+    // A key the multi-view model needs that is neither new nor in the file is an error.
+    let mut wider = tiny_config();
+    wider.block_out_channels = vec![32, 48];
+    let e = UNet::from_pretrained_2d(&wider, &weights, 3, &device).unwrap_err().to_string();
+    assert!(e.contains("wrong shape"), "{e}");
+}
