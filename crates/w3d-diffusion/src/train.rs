@@ -31,7 +31,7 @@
 //! assert!(log.loss.is_finite() && log.updated);
 //! ```
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 
 use burn::module::{Module, ModuleMapper, ModuleVisitor, Param, ParamId};
 use burn::tensor::{Device, Gradients, Tensor, TensorData};
@@ -638,30 +638,20 @@ impl Trainer {
     }
 
     fn apply(&mut self, grads: HashMap<ParamId, Tensor<1>>) -> Result<(f32, f64), Error> {
-        // Global norm in f64 over the per-tensor sums of squares, as `clip_grad_norm_`.
-        let mut total = 0.0f64;
-        for g in grads.values() {
-            let sq: f32 = (g.clone() * g.clone()).sum().into_scalar();
-            total += sq as f64;
-        }
-        let norm = total.sqrt();
-        if !norm.is_finite() {
-            return Err(Error::invalid("gradients", format!("a finite norm (found {norm}); lower the learning rate")));
-        }
-        let clip = match self.options.max_grad_norm {
-            Some(max) => (max / (norm + 1e-6)).min(1.0),
-            None => 1.0,
-        };
+        let (norm, clip) = clip_factor(&grads, self.options.max_grad_norm)?;
         let lr = self.options.learning_rate * self.warmup_factor(self.step);
         self.step += 1;
         let o = &self.options;
+        let trainable = &self.trainable;
+        let lr_of = |id: ParamId| match trainable.get(&id) {
+            Some((_, true)) => lr * o.class_embedding_lr_mult,
+            _ => lr,
+        };
         let mut update = AdamW {
             grads,
             moments: &mut self.moments,
-            trainable: &self.trainable,
+            lr_of: &lr_of,
             clip,
-            lr,
-            class_mult: o.class_embedding_lr_mult,
             betas: o.betas,
             weight_decay: o.weight_decay,
             epsilon: o.epsilon,
@@ -671,6 +661,22 @@ impl Trainer {
         self.unet = unet;
         Ok((norm as f32, lr))
     }
+}
+
+/// The global gradient norm (f64 over the per-tensor sums of squares, as PyTorch's
+/// `clip_grad_norm_`) and the factor `min(1, max / (norm + 1e-6))` the gradients are scaled
+/// by (1 without a maximum). A non-finite norm is an error.
+fn clip_factor(grads: &HashMap<ParamId, Tensor<1>>, max: Option<f64>) -> Result<(f64, f64), Error> {
+    let mut total = 0.0f64;
+    for g in grads.values() {
+        let sq: f32 = (g.clone() * g.clone()).sum().into_scalar();
+        total += sq as f64;
+    }
+    let norm = total.sqrt();
+    if !norm.is_finite() {
+        return Err(Error::invalid("gradients", format!("a finite norm (found {norm}); lower the learning rate")));
+    }
+    Ok((norm, max.map_or(1.0, |max| (max / (norm + 1e-6)).min(1.0))))
 }
 
 /// The value of a one-element loss, refused when not finite.
@@ -724,10 +730,9 @@ impl ModuleVisitor for CollectGrads<'_> {
 struct AdamW<'a> {
     grads: HashMap<ParamId, Tensor<1>>,
     moments: &'a mut HashMap<ParamId, Moments>,
-    trainable: &'a HashMap<ParamId, (String, bool)>,
+    /// The learning rate of each parameter (its group's).
+    lr_of: &'a dyn Fn(ParamId) -> f64,
     clip: f64,
-    lr: f64,
-    class_mult: f64,
     betas: (f64, f64),
     weight_decay: f64,
     epsilon: f64,
@@ -737,10 +742,7 @@ struct AdamW<'a> {
 impl ModuleMapper for AdamW<'_> {
     fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
         let Some(grad) = self.grads.remove(&param.id) else { return param };
-        let lr = match self.trainable.get(&param.id) {
-            Some((_, true)) => self.lr * self.class_mult,
-            _ => self.lr,
-        };
+        let lr = (self.lr_of)(param.id);
         let id = param.id;
         let (b1, b2) = self.betas;
         let grad = grad * self.clip;
@@ -1071,4 +1073,164 @@ pub fn run_training(
         }
     }
     crate::MultiViewPipeline::new(trainer.inference_unet(), vae, clip, scheduler)
+}
+
+/// Options of [`train_vae`].
+#[derive(Clone, Debug, PartialEq)]
+#[non_exhaustive]
+pub struct VaeTrainOptions {
+    /// Optimizer steps.
+    pub steps: usize,
+    /// Images per step.
+    pub batch: usize,
+    /// AdamW learning rate (constant; no weight decay).
+    pub learning_rate: f64,
+    /// Weight of the KL term against the standard normal prior (per latent value, beside
+    /// the per-pixel squared error).
+    pub kl_weight: f64,
+    /// Gradient-norm clip.
+    pub max_grad_norm: Option<f64>,
+    /// Seed of the batch and posterior-sample draws.
+    pub seed: u64,
+}
+
+impl Default for VaeTrainOptions {
+    fn default() -> Self {
+        Self { steps: 2000, batch: 8, learning_rate: 1e-3, kl_weight: 1e-6, max_grad_norm: Some(1.0), seed: 0 }
+    }
+}
+
+impl VaeTrainOptions {
+    /// Sets the number of steps.
+    pub fn with_steps(mut self, steps: usize) -> Self {
+        self.steps = steps;
+        self
+    }
+
+    /// Sets the images per step.
+    pub fn with_batch(mut self, batch: usize) -> Self {
+        self.batch = batch;
+        self
+    }
+
+    /// Sets the learning rate.
+    pub fn with_learning_rate(mut self, lr: f64) -> Self {
+        self.learning_rate = lr;
+        self
+    }
+
+    /// Sets the seed.
+    pub fn with_seed(mut self, seed: u64) -> Self {
+        self.seed = seed;
+        self
+    }
+}
+
+/// Trains `vae` as the variational autoencoder of `images` (3 channels, values in `[0, 1]`,
+/// sides a multiple of the VAE's downscale): per step, a random batch is encoded, a latent
+/// is sampled from the posterior, decoded, and the mean squared error against the image in
+/// `[-1, 1]` plus `kl_weight` × the mean KL divergence to N(0, I) is minimised with AdamW.
+/// Afterwards `scaling_factor` is set to 1 / the standard deviation of the latent means over
+/// `images`, so the diffusion model sees unit-variance latents (Stable Diffusion's 0.18215
+/// was found the same way). `on_step(step, loss)` reports each step.
+pub fn train_vae(
+    vae: crate::Vae,
+    images: &[w3d_core::Image],
+    options: &VaeTrainOptions,
+    on_step: &mut dyn FnMut(usize, f32),
+) -> Result<crate::Vae, Error> {
+    if images.is_empty() || options.batch == 0 {
+        return Err(Error::invalid("images", "at least one image and a batch of at least 1"));
+    }
+    let (w, h) = (images[0].width(), images[0].height());
+    for (i, image) in images.iter().enumerate() {
+        image.expect_shape(&format!("images[{i}]"), w, h, 3)?;
+    }
+    let device = vae.devices().into_iter().next().unwrap_or_default();
+    let ad = device.clone().autodiff();
+    let to_tensor = |image: &w3d_core::Image, device: &Device| -> Tensor<4> {
+        let (w, h) = (image.width() as usize, image.height() as usize);
+        let t: Tensor<3> = Tensor::from_data(TensorData::new(image.data().to_vec(), [h, w, 3]), device);
+        t.permute([2, 0, 1]).reshape([1, 3, h, w]) * 2.0 - 1.0
+    };
+    let mut vae = vae.train();
+    let ids: HashSet<ParamId> = crate::weights::collect_named_ids(&vae).into_iter().collect();
+    let mut moments = HashMap::new();
+    let mut rng = options.seed ^ 0xA076_1D64_78BD_642F;
+    let mut next = move || {
+        rng = rng.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = rng;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    };
+    let lr = options.learning_rate;
+    let lr_of = |_: ParamId| lr;
+    for step in 1..=options.steps {
+        let batch: Vec<Tensor<4>> =
+            (0..options.batch).map(|_| to_tensor(&images[(next() % images.len() as u64) as usize], &ad)).collect();
+        let x = Tensor::cat(batch, 0);
+        let (mean, logvar) = vae.encode_moments(x.clone())?;
+        let eps = gaussian_noise(mean.dims(), next(), &ad);
+        let z = mean.clone() + (logvar.clone() * 0.5).exp() * eps;
+        let recon = vae.decode(z)?;
+        let diff = recon - x;
+        let mse = (diff.clone() * diff).mean();
+        let kl = ((mean.clone() * mean + logvar.clone().exp() - logvar - 1.0) * 0.5).mean();
+        let loss = mse + kl * options.kl_weight;
+        let value = scalar(&loss)?;
+        let grads = loss.backward();
+        let mut collect = CollectAllGrads { grads: &grads, ids: &ids, out: HashMap::new() };
+        vae.visit(&mut collect);
+        let (_, clip) = clip_factor(&collect.out, options.max_grad_norm)?;
+        let mut update = AdamW {
+            grads: collect.out,
+            moments: &mut moments,
+            lr_of: &lr_of,
+            clip,
+            betas: (0.9, 0.999),
+            weight_decay: 0.0,
+            epsilon: 1e-8,
+            step,
+        };
+        vae = vae.map(&mut update);
+        on_step(step, value);
+    }
+    let vae = vae.valid();
+    let mut sum = 0.0f64;
+    let mut sum_sq = 0.0f64;
+    let mut count = 0usize;
+    for image in images {
+        let mean = vae.encode_mean(to_tensor(image, &device))?;
+        for v in mean.into_data().convert::<f32>().try_to_vec::<f32>().unwrap_or_default() {
+            sum += v as f64;
+            sum_sq += (v as f64) * (v as f64);
+            count += 1;
+        }
+    }
+    let mean = sum / count.max(1) as f64;
+    let std = (sum_sq / count.max(1) as f64 - mean * mean).max(0.0).sqrt();
+    if !(std.is_finite() && std > 0.0) {
+        return Err(Error::invalid("vae latents", format!("a positive finite spread after training (found {std})")));
+    }
+    Ok(vae.with_scaling_factor(1.0 / std))
+}
+
+/// Gradients of every parameter in `ids`, flattened.
+struct CollectAllGrads<'a> {
+    grads: &'a Gradients,
+    ids: &'a HashSet<ParamId>,
+    out: HashMap<ParamId, Tensor<1>>,
+}
+
+impl ModuleVisitor for CollectAllGrads<'_> {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        if !self.ids.contains(&param.id) {
+            return;
+        }
+        if let Some(g) = param.val().grad(self.grads) {
+            let n = g.shape().num_elements();
+            self.out.insert(param.id, g.reshape([n]));
+        }
+    }
 }

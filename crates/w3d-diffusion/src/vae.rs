@@ -216,6 +216,13 @@ impl Vae {
     /// The mean (= mode) of the latent distribution of `image` (`[n, 3, H, W]` in `[-1, 1]`),
     /// unscaled: multiply by `scaling_factor` for the diffusion model.
     pub fn encode_mean(&self, image: Tensor<4>) -> Result<Tensor<4>, Error> {
+        Ok(self.encode_moments(image)?.0)
+    }
+
+    /// Mean and log-variance of the diagonal Gaussian latent distribution of `image`
+    /// (`[n, 3, H, W]` in `[-1, 1]`), each `[n, latent_channels, H / m, W / m]`, unscaled
+    /// (the log-variance clamped to [−30, 20] as diffusers).
+    pub fn encode_moments(&self, image: Tensor<4>) -> Result<(Tensor<4>, Tensor<4>), Error> {
         let [n, c, h, w] = image.dims();
         let m = self.config.downscale();
         if c != self.config.in_channels {
@@ -237,7 +244,16 @@ impl Vae {
         x = self.encoder_conv_out.forward(self.encoder_norm_out.forward_silu(x));
         let moments = self.quant_conv.forward(x);
         let lat = self.config.latent_channels;
-        Ok(moments.slice([0..n, 0..lat, 0..h / m, 0..w / m]))
+        let mean = moments.clone().slice([0..n, 0..lat, 0..h / m, 0..w / m]);
+        let logvar = moments.slice([0..n, lat..2 * lat, 0..h / m, 0..w / m]).clamp(-30.0, 20.0);
+        Ok((mean, logvar))
+    }
+
+    /// This model with `scaling_factor` set (the factor that brings the latents of the
+    /// training images to unit standard deviation for the diffusion model).
+    pub fn with_scaling_factor(mut self, scaling_factor: f64) -> Self {
+        self.config.scaling_factor = scaling_factor;
+        self
     }
 
     /// Decodes unscaled latents `[n, latent_channels, h, w]` into images `[n, 3, h·8, w·8]`

@@ -548,3 +548,16 @@ pub(crate) fn config_json<C: serde::Serialize>(config: &C, extra: &[(&str, &str)
     }
     Ok(value)
 }
+
+/// The id of every float parameter of `module`.
+pub(crate) fn collect_named_ids<M: Module>(module: &M) -> Vec<ParamId> {
+    struct Ids(Vec<ParamId>);
+    impl ModuleVisitor for Ids {
+        fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+            self.0.push(param.id);
+        }
+    }
+    let mut ids = Ids(Vec::new());
+    module.visit(&mut ids);
+    ids.0
+}

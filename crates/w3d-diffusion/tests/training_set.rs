@@ -229,3 +229,27 @@ fn a_resumed_run_continues_the_uninterrupted_one_exactly() {
     let e = run_training(stage_two_pipeline(&device), &set, options, &run, &missing, true, &mut |_| {}).unwrap_err();
     assert!(e.to_string().contains("trainer_state.json"), "{e}");
 }
+
+#[test]
+fn a_small_vae_learns_to_reconstruct_the_views() {
+    use w3d_diffusion::train::{VaeTrainOptions, train_vae};
+    let dir = tempfile::tempdir().unwrap();
+    write_set(dir.path(), &[("a", CameraType::Orthographic, "grey")]);
+    let set = TrainingSet::open(dir.path()).unwrap();
+    let images: Vec<Image> = set.images(0).unwrap().domains.into_iter().flatten().collect();
+    let device = w3d_diffusion::default_device();
+    let config = w3d_diffusion::VaeConfig::from_file(fixture("wonder3d_tiny").join("vae").join("config.json")).unwrap();
+    let vae = w3d_diffusion::Vae::random(&config, 1, &device).unwrap();
+    let mut losses = Vec::new();
+    let options = VaeTrainOptions::default().with_steps(60).with_batch(4).with_learning_rate(3e-3);
+    let vae = train_vae(vae, &images, &options, &mut |_, loss| losses.push(loss)).unwrap();
+    let early: f32 = losses[..5].iter().sum::<f32>() / 5.0;
+    let late: f32 = losses[losses.len() - 5..].iter().sum::<f32>() / 5.0;
+    eprintln!("vae loss {early} → {late}, scaling factor {}", vae.config().scaling_factor);
+    assert!(late * 3.0 < early, "VAE loss {early} → {late}: not a 3× drop");
+    assert!(vae.config().scaling_factor.is_finite() && vae.config().scaling_factor > 0.0);
+    let out = dir.path().join("vae");
+    vae.save(&out).unwrap();
+    let loaded = w3d_diffusion::Vae::from_dir(&out, &device).unwrap();
+    assert_eq!(loaded.config().scaling_factor, vae.config().scaling_factor);
+}
