@@ -116,6 +116,18 @@ pub fn view_size(s: &str) -> Result<u32, String> {
     whole_in(s, 1, MAX_VIEW_SIZE.into(), " pixels (memory grows with the square)")
 }
 
+/// `--size` of `wonder3d dataset`: [`wonder3d::dataset::MIN_SIZE`] to
+/// [`wonder3d::dataset::MAX_SIZE`] pixels.
+pub fn dataset_size(s: &str) -> Result<u32, String> {
+    use wonder3d::dataset::{MAX_SIZE, MIN_SIZE};
+    whole_in(s, MIN_SIZE.into(), MAX_SIZE.into(), " pixels")
+}
+
+/// `--samples` of `wonder3d dataset`: 1 to [`wonder3d::dataset::MAX_SAMPLES`] per mesh.
+pub fn dataset_samples(s: &str) -> Result<usize, String> {
+    whole_in(s, 1, wonder3d::dataset::MAX_SAMPLES as i128, " samples per mesh")
+}
+
 /// A texture side: 8 to [`MAX_TEXTURE_SIZE`] texels.
 pub fn texture_size(s: &str) -> Result<u32, String> {
     whole_in(s, 8, MAX_TEXTURE_SIZE.into(), " texels (memory grows with the square)")

@@ -12,10 +12,12 @@
 //! wonder3d generate cup.jpg --weights ckpts --out views/cup  # 6 views x {normal, colour} (docs/weights.md)
 //! wonder3d run cup.jpg --weights ckpts --out cup.glb          # prepare -> generate -> reconstruct -> texture
 //! wonder3d batch items.txt --out results --jobs 2 [--weights ckpts] [--shard 0/8] [--resume]  # many objects
+//! wonder3d dataset assets/spot.obj assets/torus.obj --out train --samples 4 --size 256  # a training set (docs/training.md)
 //! ```
 
 mod args;
 mod batch;
+mod dataset;
 mod demo;
 mod eval;
 mod generate;
@@ -60,6 +62,8 @@ enum Command {
     Run(run::RunArgs),
     /// Many objects: a manifest of images or view folders, one output folder each, resumable, shardable (Slurm, Kubernetes).
     Batch(batch::BatchArgs),
+    /// A training set rendered from meshes: random rotations, camera types and backgrounds, one view-set folder per sample + dataset.json.
+    Dataset(dataset::DatasetArgs),
 }
 
 fn main() -> ExitCode {
@@ -75,6 +79,7 @@ fn main() -> ExitCode {
         Command::Generate(args) => generate::run(&args),
         Command::Run(args) => run::run(&args),
         Command::Batch(args) => batch::run(&args),
+        Command::Dataset(args) => dataset::run(&args),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -43,6 +43,7 @@
 //! ```
 
 pub mod batch;
+pub mod dataset;
 pub mod demo;
 #[cfg(feature = "diffusion")]
 mod generate;
