@@ -47,6 +47,7 @@ use clap::{Parser, Subcommand};
 mod chart;
 mod recon;
 mod robust;
+mod train_small;
 
 #[derive(Parser)]
 #[command(about = "wonder3d-rs project automation")]
@@ -66,6 +67,15 @@ enum Task {
         /// Extra arguments passed to criterion (e.g. a filter, `--measurement-time 5`).
         #[arg(last = true)]
         criterion_args: Vec<String>,
+    },
+    /// Train the small multi-view model (docs/training.md): dataset, VAE, three UNet stages.
+    TrainSmall {
+        /// Output folder (dataset, stage checkpoints and logs, final model).
+        #[arg(long, default_value = "target/train-small")]
+        out: PathBuf,
+        /// A few steps of each phase only (checks the recipe and times its steps).
+        #[arg(long)]
+        quick: bool,
     },
     /// Regenerate committed test fixtures with the Python peer tools.
     Fixtures {
@@ -527,6 +537,7 @@ fn main() -> ExitCode {
         Task::ValidateGlb { files } => validate_glb(&files),
         Task::LoadGlb { files, vertices, triangles } => load_glb(&files, vertices, triangles),
         Task::Fixtures { which } => fixtures(&which),
+        Task::TrainSmall { out, quick } => train_small::run(&out, quick),
         Task::Bench { suite, criterion_args } => bench(&suite, &criterion_args),
     };
     match result {

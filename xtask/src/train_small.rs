@@ -1,0 +1,174 @@
+//! `cargo xtask train-small`: the recipe of the small model shipped in `assets/model-small`
+//! (`docs/training.md`): a training set rendered from the CC0 / CC BY meshes, a small VAE
+//! trained on its images, a frozen random CLIP image encoder, and the multi-view UNet trained
+//! through Wonder3D++'s three stages, each stage starting from the previous one.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use wonder3d::dataset::{Dataset, DatasetOptions};
+use wonder3d::diffusion::train::{RunEvent, RunOptions, Stage, TrainOptions, VaeTrainOptions, run_training, train_vae};
+use wonder3d::diffusion::training_set::TrainingSet;
+use wonder3d::diffusion::{
+    ClipVision, ClipVisionConfig, MultiViewPipeline, SchedulerConfig, UNet, UNetConfig, Vae, VaeConfig,
+};
+
+/// The meshes the small model trains on (licences in `docs/training.md`), relative to the
+/// workspace root; `torus` is held out.
+pub(crate) const TRAIN_MESHES: &[&str] = &[
+    "assets/spot.obj",
+    "assets/bob_tri.obj",
+    "../shared/data/meshes/boot.obj",
+    "../shared/data/meshes/hammer.obj",
+    "../shared/data/meshes/wingnut.obj",
+    "../shared/data/meshes/plane.obj",
+    "../shared/data/meshes/koala_low_resolution.obj",
+];
+
+/// The held-out mesh.
+pub(crate) const HELD_OUT_MESH: &str = "assets/torus.obj";
+
+/// The schedule of one run.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Schedule {
+    pub samples: usize,
+    pub size: u32,
+    pub vae_steps: usize,
+    pub stage_steps: [usize; 3],
+    pub stage_lr: [f64; 3],
+    pub objects_per_batch: usize,
+}
+
+impl Schedule {
+    pub(crate) fn full() -> Self {
+        Self {
+            samples: 12,
+            size: 64,
+            vae_steps: 1500,
+            stage_steps: [1500, 2500, 800],
+            stage_lr: [5e-4, 3e-4, 2e-4],
+            objects_per_batch: 1,
+        }
+    }
+
+    /// A few steps of everything, to check the recipe end to end and time its steps.
+    pub(crate) fn quick() -> Self {
+        Self { samples: 2, size: 64, vae_steps: 20, stage_steps: [10, 10, 10], ..Self::full() }
+    }
+}
+
+fn config_dir() -> PathBuf {
+    crate::workspace_root().join("crates").join("w3d-diffusion").join("configs").join("small")
+}
+
+fn err(e: impl std::fmt::Display) -> String {
+    e.to_string()
+}
+
+pub(crate) fn run(out: &Path, quick: bool) -> Result<(), String> {
+    let schedule = if quick { Schedule::quick() } else { Schedule::full() };
+    let root = crate::workspace_root();
+    let started = Instant::now();
+    let device = wonder3d::diffusion::default_device();
+    std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
+
+    // 1. The training set.
+    let data = out.join("data");
+    let meshes: Vec<PathBuf> = TRAIN_MESHES.iter().map(|m| root.join(m)).collect();
+    let options = DatasetOptions::default().with_samples(schedule.samples).with_size(schedule.size).with_seed(0);
+    let dataset = Dataset::prepare(&meshes, &options).map_err(err)?;
+    dataset.write(&data, &mut |_| {}).map_err(err)?;
+    let set = TrainingSet::open(&data).map_err(err)?;
+    eprintln!("[{:6.0}s] training set: {} samples at {}²", started.elapsed().as_secs_f64(), set.len(), set.size());
+
+    // 2. The VAE, trained on every model image of the set.
+    let vae_config = VaeConfig::from_file(config_dir().join("vae").join("config.json")).map_err(err)?;
+    let mut images = Vec::new();
+    for i in 0..set.len() {
+        images.extend(set.images(i).map_err(err)?.domains.into_iter().flatten());
+    }
+    let vae = Vae::random(&vae_config, 1, &device).map_err(err)?;
+    let vae_options = VaeTrainOptions::default().with_steps(schedule.vae_steps).with_batch(8).with_learning_rate(1e-3);
+    let t = Instant::now();
+    let vae = train_vae(vae, &images, &vae_options, &mut |step, loss| {
+        if step % 100 == 0 || step == schedule.vae_steps {
+            eprintln!(
+                "  vae step {step}/{}: loss {loss:.5} ({:.2} s/step)",
+                schedule.vae_steps,
+                t.elapsed().as_secs_f64() / step as f64
+            );
+        }
+    })
+    .map_err(err)?;
+    eprintln!(
+        "[{:6.0}s] VAE trained on {} images, scaling factor {:.4}",
+        started.elapsed().as_secs_f64(),
+        images.len(),
+        vae.config().scaling_factor
+    );
+
+    // 3. The frozen CLIP image encoder (random weights, see docs/training.md) and the UNet.
+    let clip_config =
+        ClipVisionConfig::from_file(config_dir().join("image_encoder").join("config.json")).map_err(err)?;
+    let clip = ClipVision::random(&clip_config, 2, &device).map_err(err)?;
+    let unet_config = UNetConfig::from_file(config_dir().join("unet").join("config.json")).map_err(err)?;
+    let unet = UNet::random(&unet_config, 3, &device).map_err(err)?;
+    let scheduler =
+        SchedulerConfig::from_file(config_dir().join("scheduler").join("scheduler_config.json")).map_err(err)?;
+    let mut pipeline = MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)?;
+
+    // 4. The three stages.
+    for (i, stage) in [Stage::MultiDomain, Stage::MixedDomain, Stage::CrossDomain].into_iter().enumerate() {
+        if stage == Stage::CrossDomain {
+            let (unet, vae, clip, scheduler) = pipeline.into_parts();
+            let unet = unet.with_cross_domain_attention(4).map_err(err)?;
+            pipeline = MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)?;
+        }
+        let steps = schedule.stage_steps[i];
+        let options = TrainOptions::for_stage(stage)
+            .with_learning_rate(schedule.stage_lr[i])
+            .with_warmup_steps((steps / 20).max(1))
+            .with_seed(10 + i as u64);
+        let run = RunOptions::default()
+            .with_steps(steps)
+            .with_objects_per_batch(schedule.objects_per_batch)
+            .with_checkpoint_every(500);
+        let stage_dir = out.join(format!("stage{}", stage.number()));
+        if stage_dir.exists() {
+            std::fs::remove_dir_all(&stage_dir).map_err(|e| format!("{}: {e}", stage_dir.display()))?;
+        }
+        let t = Instant::now();
+        pipeline = run_training(pipeline, &set, options, &run, &stage_dir, false, &mut |event| {
+            if let RunEvent::Step(log) = event {
+                if log.step % 50 == 0 || log.step == steps {
+                    eprintln!(
+                        "  stage {} step {}/{steps}: loss {:.4} ({:.2} s/step)",
+                        stage.number(),
+                        log.step,
+                        log.loss,
+                        t.elapsed().as_secs_f64() / log.step as f64
+                    );
+                }
+            }
+        })
+        .map_err(err)?;
+        eprintln!("[{:6.0}s] stage {} done", started.elapsed().as_secs_f64(), stage.number());
+    }
+    let model = out.join("model");
+    pipeline.save(&model).map_err(err)?;
+    let wall = started.elapsed().as_secs_f64();
+    let record = serde_json::json!({
+        "schedule": {
+            "samples_per_mesh": schedule.samples, "size": schedule.size, "vae_steps": schedule.vae_steps,
+            "stage_steps": schedule.stage_steps, "stage_lr": schedule.stage_lr,
+            "objects_per_batch": schedule.objects_per_batch,
+        },
+        "meshes": TRAIN_MESHES, "held_out": HELD_OUT_MESH,
+        "wall_seconds": wall,
+        "threads": std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
+    });
+    std::fs::write(out.join("recipe.json"), serde_json::to_vec_pretty(&record).map_err(err)?)
+        .map_err(|e| format!("{}: {e}", out.display()))?;
+    eprintln!("[{wall:6.0}s] model written to {}", model.display());
+    Ok(())
+}
