@@ -139,16 +139,16 @@ pub(crate) fn run(out: &Path, quick: bool) -> Result<(), String> {
         }
         let t = Instant::now();
         pipeline = run_training(pipeline, &set, options, &run, &stage_dir, false, &mut |event| {
-            if let RunEvent::Step(log) = event {
-                if log.step % 50 == 0 || log.step == steps {
-                    eprintln!(
-                        "  stage {} step {}/{steps}: loss {:.4} ({:.2} s/step)",
-                        stage.number(),
-                        log.step,
-                        log.loss,
-                        t.elapsed().as_secs_f64() / log.step as f64
-                    );
-                }
+            if let RunEvent::Step(log) = event
+                && (log.step % 50 == 0 || log.step == steps)
+            {
+                eprintln!(
+                    "  stage {} step {}/{steps}: loss {:.4} ({:.2} s/step)",
+                    stage.number(),
+                    log.step,
+                    log.loss,
+                    t.elapsed().as_secs_f64() / log.step as f64
+                );
             }
         })
         .map_err(err)?;
