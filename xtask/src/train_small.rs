@@ -45,7 +45,7 @@ impl Schedule {
             samples: 12,
             size: 64,
             vae_steps: 1500,
-            stage_steps: [1500, 2500, 800],
+            stage_steps: [2000, 3000, 1000],
             stage_lr: [5e-4, 3e-4, 2e-4],
             objects_per_batch: 1,
         }
@@ -88,7 +88,7 @@ pub(crate) fn run(out: &Path, quick: bool) -> Result<(), String> {
         images.extend(set.images(i).map_err(err)?.domains.into_iter().flatten());
     }
     let vae = Vae::random(&vae_config, 1, &device).map_err(err)?;
-    let vae_options = VaeTrainOptions::default().with_steps(schedule.vae_steps).with_batch(8).with_learning_rate(1e-3);
+    let vae_options = VaeTrainOptions::default().with_steps(schedule.vae_steps).with_batch(4).with_learning_rate(1e-3);
     let t = Instant::now();
     let vae = train_vae(vae, &images, &vae_options, &mut |step, loss| {
         if step % 100 == 0 || step == schedule.vae_steps {

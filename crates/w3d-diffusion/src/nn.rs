@@ -125,6 +125,10 @@ impl Conv2d {
                 let (p, st) = (self.padding, self.stride);
                 let out = ((h + 2 * p).saturating_sub(k) / st + 1) * ((w + 2 * p).saturating_sub(k) / st + 1);
                 match x.device().inner().as_dispatch() {
+                    // Training: the backend's conv2d has a native backward (two convolutions);
+                    // im2col's backward scatters each of the k² slices into a zeroed copy of
+                    // the input, several times slower.
+                    _ if x.is_autodiff() => ConvAlgorithm::Direct,
                     DispatchDevice::NdArray(_) => ConvAlgorithm::Im2col,
                     DispatchDevice::Flex(_) if st == 1 && n * c * k * k * out <= IM2COL_MAX_FLOATS => {
                         ConvAlgorithm::Im2col
