@@ -148,6 +148,12 @@ pub fn seed(s: &str) -> Result<u64, String> {
     whole_in(s, 0, u64::MAX.into(), "")
 }
 
+/// A learning rate: finite, above 0, at most 1.
+pub fn learning_rate(s: &str) -> Result<f64, String> {
+    let lr = finite_in(s, 0.0, 1.0, "a learning rate")?;
+    if lr == 0.0 { Err("a learning rate above 0".into()) } else { Ok(lr) }
+}
+
 /// DDIM steps: 1 to 1000 (the scheduler's training steps).
 pub fn steps(s: &str) -> Result<usize, String> {
     whole_in(s, 1, 1000, " steps")

@@ -13,6 +13,7 @@
 //! wonder3d run cup.jpg --weights ckpts --out cup.glb          # prepare -> generate -> reconstruct -> texture
 //! wonder3d batch items.txt --out results --jobs 2 [--weights ckpts] [--shard 0/8] [--resume]  # many objects
 //! wonder3d dataset assets/spot.obj assets/torus.obj --out train --samples 4 --size 256  # a training set (docs/training.md)
+//! wonder3d train --stage 2 --data train --init model --out run2 --steps 1000  # train the multi-view UNet
 //! ```
 
 mod args;
@@ -28,6 +29,7 @@ mod reconstruct;
 mod render;
 mod run;
 mod texture;
+mod train;
 
 use std::process::ExitCode;
 
@@ -64,6 +66,8 @@ enum Command {
     Batch(batch::BatchArgs),
     /// A training set rendered from meshes: random rotations, camera types and backgrounds, one view-set folder per sample + dataset.json.
     Dataset(dataset::DatasetArgs),
+    /// Train the multi-view UNet on a training set, one Wonder3D++ stage at a time; resumable.
+    Train(train::TrainArgs),
 }
 
 fn main() -> ExitCode {
@@ -77,6 +81,7 @@ fn main() -> ExitCode {
         Command::Demo(args) => demo::run(&args),
         Command::Prepare(args) => prepare::run(&args),
         Command::Generate(args) => generate::run(&args),
+        Command::Train(args) => train::run(&args),
         Command::Run(args) => run::run(&args),
         Command::Batch(args) => batch::run(&args),
         Command::Dataset(args) => dataset::run(&args),

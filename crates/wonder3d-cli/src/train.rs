@@ -1,0 +1,144 @@
+//! `wonder3d train --stage 1|2|3 --data DIR --init MODEL --out DIR [--steps N] [--lr LR]
+//! [--objects-per-batch B] [--accumulate K] [--checkpoint-every C] [--seed S] [--resume]`:
+//! trains the multi-view UNet of a model directory on a training set written by `wonder3d
+//! dataset`, one Wonder3D++ stage at a time (`docs/training.md`).
+
+use std::path::PathBuf;
+
+use wonder3d::{Error, Result};
+
+/// Arguments of `wonder3d train`.
+#[derive(clap::Args)]
+#[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
+pub struct TrainArgs {
+    /// Stage: 1 multi-domain pre-training (no switcher), 2 mixed-domain with the domain
+    /// switcher, 3 cross-domain alignment (only the joint attention trains; added to a model
+    /// that lacks it).
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=3))]
+    pub stage: u8,
+    /// Training set folder (`wonder3d dataset`), at the model's image size.
+    #[arg(long)]
+    pub data: PathBuf,
+    /// Model directory to start from (unet/, vae/, image_encoder/, scheduler/); the VAE and
+    /// CLIP encoder stay frozen.
+    #[arg(long)]
+    pub init: PathBuf,
+    /// Output folder: `checkpoint/` (a model directory plus the optimizer state) and
+    /// `train_log.jsonl`.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Optimizer steps to reach (with `--resume`, counting the steps already done).
+    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
+    pub steps: u64,
+    /// Peak learning rate (default: the stage's, 1e-4 / 5e-5 / 2e-5).
+    #[arg(long, value_parser = crate::args::learning_rate)]
+    pub lr: Option<f64>,
+    /// Linear warm-up in optimizer steps.
+    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(0..=10_000_000))]
+    pub warmup: u64,
+    /// Objects per micro-batch (each 6 views, or 12 in stage 3).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=1024))]
+    pub objects_per_batch: u64,
+    /// Micro-batches accumulated into one optimizer step.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=1024))]
+    pub accumulate: u64,
+    /// Write a checkpoint every this many optimizer steps (and at the end).
+    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
+    pub checkpoint_every: u64,
+    /// Seed of the sample, domain, timestep, noise and dropout draws.
+    #[arg(long, default_value_t = 0, allow_hyphen_values = true, value_parser = crate::args::seed)]
+    pub seed: u64,
+    /// Continue the run in `--out` from its checkpoint (bit-identical to an uninterrupted run).
+    #[arg(long)]
+    pub resume: bool,
+    /// No progress bar.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// Runs `wonder3d train`.
+#[cfg(feature = "diffusion")]
+pub fn run(args: &TrainArgs) -> Result<()> {
+    use indicatif::{ProgressBar, ProgressStyle};
+    use wonder3d::diffusion::train::{RunEvent, RunOptions, Stage, TrainOptions, run_training};
+    use wonder3d::diffusion::training_set::TrainingSet;
+    use wonder3d::diffusion::{MultiViewPipeline, default_device};
+
+    let stage = Stage::from_number(args.stage)?;
+    // Everything cheap is checked before the model loads: the set's index, the output folder.
+    let set = TrainingSet::open(&args.data)?;
+    let checkpoint = args.out.join(wonder3d::diffusion::train::CHECKPOINT_DIR);
+    if !args.resume && checkpoint.exists() {
+        return Err(Error::invalid(
+            "--out",
+            format!(
+                "a folder without a run ({} exists: pass --resume, or choose another folder)",
+                checkpoint.display()
+            ),
+        ));
+    }
+    let device = default_device();
+    let mut pipeline = MultiViewPipeline::from_dir(&args.init, &device)?;
+    if stage == Stage::CrossDomain && !pipeline.unet().config().cd_attention_mid && !args.resume {
+        eprintln!(
+            "note: {} has no cross-domain attention; adding it (zero-initialised output) for stage 3",
+            args.init.display()
+        );
+        let (unet, vae, clip, scheduler) = pipeline.into_parts();
+        pipeline = MultiViewPipeline::new(unet.with_cross_domain_attention(args.seed)?, vae, clip, scheduler)?;
+    }
+    let mut options = TrainOptions::for_stage(stage)
+        .with_warmup_steps(args.warmup as usize)
+        .with_gradient_accumulation(args.accumulate as usize)
+        .with_seed(args.seed);
+    if let Some(lr) = args.lr {
+        options = options.with_learning_rate(lr);
+    }
+    let run = RunOptions::default()
+        .with_steps(args.steps as usize)
+        .with_objects_per_batch(args.objects_per_batch as usize)
+        .with_checkpoint_every(args.checkpoint_every as usize);
+    let bar = if args.quiet { ProgressBar::hidden() } else { ProgressBar::new(set.len() as u64) };
+    bar.set_style(
+        ProgressStyle::with_template("{prefix:>8} [{bar:40}] {pos}/{len} {msg} ({elapsed}, eta {eta})")
+            .map_err(|e| Error::invalid("progress template", e.to_string()))?
+            .progress_chars("=> "),
+    );
+    bar.set_prefix("encode");
+    let mut last_checkpoint = None;
+    run_training(pipeline, &set, options, &run, &args.out, args.resume, &mut |event| match event {
+        RunEvent::Encoded { done, total } => {
+            bar.set_length(total as u64);
+            bar.set_position(done as u64);
+        }
+        RunEvent::Resumed { step } => {
+            bar.println(format!("resumed at step {step}"));
+            bar.set_position(step as u64);
+        }
+        RunEvent::Step(log) => {
+            if bar.prefix() != "train" {
+                bar.set_prefix("train");
+                bar.set_length(args.steps);
+                bar.reset_eta();
+            }
+            bar.set_position(log.step as u64);
+            bar.set_message(format!("loss {:.4}", log.loss));
+        }
+        RunEvent::Checkpoint { step } => last_checkpoint = Some(step),
+    })?;
+    bar.finish_and_clear();
+    println!(
+        "stage {} trained to step {} -> {} (log: {})",
+        stage.number(),
+        last_checkpoint.unwrap_or(args.steps as usize),
+        checkpoint.display(),
+        args.out.join(wonder3d::diffusion::train::LOG_FILE).display()
+    );
+    Ok(())
+}
+
+/// Runs `wonder3d train` (this binary has no model).
+#[cfg(not(feature = "diffusion"))]
+pub fn run(_: &TrainArgs) -> Result<()> {
+    Err(crate::generate::without_model())
+}

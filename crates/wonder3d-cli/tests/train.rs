@@ -1,0 +1,97 @@
+//! `wonder3d train`: a stage run on the tiny model, resumed, its checkpoint generating views;
+//! bad input refused before the model loads.
+
+mod common;
+
+use common::{tiny_weights, wonder3d};
+
+fn stderr(out: &std::process::Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+#[test]
+fn a_stage_runs_resumes_and_its_checkpoint_generates() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let spot = concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets/spot.obj");
+    // The tiny model's images are 32².
+    let out =
+        wonder3d(&["dataset", spot, "--out", data.to_str().unwrap(), "--samples", "2", "--size", "32", "--quiet"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let run = dir.path().join("run");
+    let train = |steps: &str, resume: bool| {
+        let mut args = vec![
+            "train",
+            "--stage",
+            "3",
+            "--data",
+            data.to_str().unwrap(),
+            "--init",
+            &tiny_weights(),
+            "--out",
+            run.to_str().unwrap(),
+            "--steps",
+            steps,
+            "--lr",
+            "1e-3",
+            "--warmup",
+            "1",
+            "--checkpoint-every",
+            "2",
+            "--quiet",
+        ]
+        .into_iter()
+        .map(String::from)
+        .collect::<Vec<_>>();
+        if resume {
+            args.push("--resume".into());
+        }
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        wonder3d(&args)
+    };
+    let first = train("2", false);
+    assert!(first.status.success(), "{}", stderr(&first));
+    let again = train("4", false);
+    assert!(!again.status.success() && stderr(&again).contains("--resume"), "{}", stderr(&again));
+    let resumed = train("4", true);
+    assert!(resumed.status.success(), "{}", stderr(&resumed));
+    let log = std::fs::read_to_string(run.join("train_log.jsonl")).unwrap();
+    assert_eq!(log.lines().count(), 4, "{log}");
+    let views = dir.path().join("views");
+    let input = data.join("spot_000").join("colour_front.png");
+    let generated = wonder3d(&[
+        "generate",
+        input.to_str().unwrap(),
+        "--weights",
+        run.join("checkpoint").to_str().unwrap(),
+        "--out",
+        views.to_str().unwrap(),
+        "--steps",
+        "2",
+        "--quiet",
+    ]);
+    assert!(generated.status.success(), "{}", stderr(&generated));
+    assert!(views.join("normal_front.png").is_file());
+}
+
+#[test]
+fn train_refuses_bad_input_before_loading_the_model() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("nothing");
+    let out = wonder3d(&[
+        "train",
+        "--stage",
+        "2",
+        "--data",
+        missing.to_str().unwrap(),
+        "--init",
+        &tiny_weights(),
+        "--out",
+        dir.path().join("run").to_str().unwrap(),
+    ]);
+    assert!(!out.status.success() && stderr(&out).contains("dataset.json"), "{}", stderr(&out));
+    let out = wonder3d(&["train", "--stage", "4", "--data", "x", "--init", "y", "--out", "z"]);
+    assert!(!out.status.success() && stderr(&out).contains("--stage"), "{}", stderr(&out));
+    let out = wonder3d(&["train", "--stage", "1", "--data", "x", "--init", "y", "--out", "z", "--lr", "0"]);
+    assert!(!out.status.success() && stderr(&out).contains("learning rate"), "{}", stderr(&out));
+}
