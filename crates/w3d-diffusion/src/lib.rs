@@ -52,8 +52,8 @@ pub use config::{
     UNetConfig, VaeConfig,
 };
 pub use multiview::{
-    CameraType, Conditioning, Domain, GeneratedViews, MultiViewPipeline, SampleOptions, prepare_input, quantize_u8,
-    switcher_labels, task_labels,
+    CameraType, Conditioning, Domain, GeneratedViews, MultiViewPipeline, SampleOptions, prepare_input,
+    prepare_input_on, quantize_u8, switcher_labels, task_labels,
 };
 pub use scheduler::{
     DdimInverseScheduler, DdimScheduler, DpmSolverMultistepScheduler, Prediction, SamplerKind,

@@ -184,6 +184,13 @@ pub fn quantize_u8(v: f32) -> u8 {
 /// pipeline does ([`quantize_u8`]). Returns the RGB image (3 channels, every value a multiple
 /// of 1/255).
 pub fn prepare_input(rgba: &Image, size: u32) -> Result<Image, Error> {
+    prepare_input_on(rgba, size, 1.0)
+}
+
+/// [`prepare_input`] composited over a grey level `background` in `[0, 1]` instead of white:
+/// how training frames its condition images (on the sample's background), so that training
+/// and inference see the object framed alike.
+pub fn prepare_input_on(rgba: &Image, size: u32, background: f32) -> Result<Image, Error> {
     if rgba.channels() != 4 {
         return Err(Error::invalid(
             "image",
@@ -222,14 +229,16 @@ pub fn prepare_input(rgba: &Image, size: u32) -> Result<Image, Error> {
     let (nw, nh) = (((cw as f32 * scale).round() as u32).max(1), ((ch as f32 * scale).round() as u32).max(1));
     let resized = image::imageops::resize(&crop, nw, nh, FilterType::Triangle);
     let (ox, oy) = ((size - nw) / 2, (size - nh) / 2);
-    let mut out = Image::filled(size, size, 3, 1.0)?;
+    let background = background.clamp(0.0, 1.0);
+    let level = f32::from(quantize_u8(background)) / 255.0;
+    let mut out = Image::filled(size, size, 3, level)?;
     for y in 0..nh {
         for x in 0..nw {
             let p = resized.get_pixel(x, y).0;
             let a = p[3].clamp(0.0, 1.0);
             let dst = out.pixel_mut(ox + x, oy + y);
             for c in 0..3 {
-                dst[c] = f32::from(quantize_u8(p[c] + (1.0 - a))) / 255.0;
+                dst[c] = f32::from(quantize_u8(p[c] + background * (1.0 - a))) / 255.0;
             }
         }
     }
@@ -504,11 +513,21 @@ impl MultiViewPipeline {
         let pixels = clip_preprocess(&levels, n, n, size)?;
         let pixels = Tensor::<4>::from_data(TensorData::new(pixels, [1, 3, size, size]), device);
         let embeds = self.clip.image_embeds(pixels)?;
-        let unit: Vec<f32> = levels.iter().map(|v| v / 255.0).collect();
+        let latent = self.image_latent(rgb, device)?;
+        Ok(Conditioning { embeds, latent })
+    }
+
+    /// The VAE latent (mean × `scaling_factor`, `[1, c, h, w]`) of `rgb` as
+    /// [`MultiViewPipeline::condition`] computes it (8-bit levels), without the CLIP
+    /// embedding: the encoding of training targets.
+    pub fn image_latent(&self, rgb: &Image, device: &Device) -> Result<Tensor<4>, Error> {
+        let s = self.image_size as u32;
+        rgb.expect_shape("image", s, s, 3)?;
+        let n = self.image_size;
+        let unit: Vec<f32> = rgb.data().iter().map(|&v| f32::from(quantize_u8(v)) / 255.0).collect();
         let chw: Tensor<3> = Tensor::from_data(TensorData::new(unit, [n, n, 3]), device);
         let image = chw.permute([2, 0, 1]).reshape([1, 3, n, n]) * 2.0 - 1.0;
-        let latent = self.vae.encode_mean(image)? * self.vae.config().scaling_factor;
-        Ok(Conditioning { embeds, latent })
+        Ok(self.vae.encode_mean(image)? * self.vae.config().scaling_factor)
     }
 
     /// Class labels `[12, input_dim]` of the batch `[normal × 6, colour × 6]`.

@@ -8,6 +8,12 @@
 //! - colour: `rgb · mask + bg · (1 − mask)`;
 //! - normal: `(n + 1) / 2 · mask + bg · (1 − mask)` (the encoding inference decodes);
 //! - mask: the mask in every channel (white object on black), whatever the background.
+//!
+//! The condition (input) image is the front view of the input domain framed as inference
+//! frames a user's image ([`crate::prepare_input`]: cropped to the object, scaled to
+//! [`crate::multiview::OBJECT_FRACTION`] of the side, centred) on the sample's background
+//! (mask-domain inputs on black), so a photo at inference is framed like the inputs the model
+//! was trained on; the targets keep the rig's framing, as in Wonder3D.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
@@ -16,7 +22,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 use serde::Deserialize;
 use w3d_core::{Error, Image, ViewSet};
 
-use crate::multiview::{CameraType, MultiViewPipeline, NUM_VIEWS, task_labels};
+use crate::multiview::{CameraType, MultiViewPipeline, NUM_VIEWS, prepare_input_on, task_labels};
 use crate::train::{Stage, TrainBatch};
 
 /// The `format` field of `dataset.json`.
@@ -123,6 +129,9 @@ pub struct SampleImages {
     pub camera: CameraType,
     /// Normal, colour and mask images, 6 each, in [`TrainDomain`] order.
     pub domains: [Vec<Image>; 3],
+    /// The condition image of each domain: its front view framed as inference frames an
+    /// input (see the module docs).
+    pub inputs: [Image; 3],
 }
 
 impl TrainingSet {
@@ -244,6 +253,7 @@ impl TrainingSet {
         }
         let bg = sample.background.value();
         let mut domains: [Vec<Image>; 3] = Default::default();
+        let mut inputs = Vec::with_capacity(3);
         for view in set.views() {
             let (w, h) = (view.mask.width(), view.mask.height());
             if (w, h) != (self.size, self.size) {
@@ -272,8 +282,24 @@ impl TrainingSet {
             domains[0].push(composite(view.normal.data(), |n| (n + 1.0) * 0.5)?);
             domains[1].push(composite(colour.data(), |c| c)?);
             domains[2].push(Image::new(w, h, 3, mask.iter().flat_map(|&m| [m; 3]).collect())?);
+            if inputs.is_empty() {
+                let rgba = |rgb: Vec<f32>| -> Result<Image, Error> {
+                    let data = rgb.chunks_exact(3).zip(mask).flat_map(|(px, &m)| [px[0], px[1], px[2], m]).collect();
+                    Image::new(w, h, 4, data)
+                };
+                let normal: Vec<f32> = view.normal.data().iter().map(|n| (n + 1.0) * 0.5).collect();
+                let field = |name: &str| folder.join(format!("{name}_{}.png", view.name));
+                let frame = |image: Image, bg: f32, name: &str| {
+                    prepare_input_on(&image, self.size, bg)
+                        .map_err(|e| Error::format(field(name), "mask", e.to_string()))
+                };
+                inputs.push(frame(rgba(normal)?, bg, "normal")?);
+                inputs.push(frame(rgba(colour.data().to_vec())?, bg, "colour")?);
+                inputs.push(frame(rgba(vec![1.0; mask.len() * 3])?, 0.0, "mask")?);
+            }
         }
-        Ok(SampleImages { camera: sample.camera, domains })
+        let inputs: [Image; 3] = inputs.try_into().map_err(|_| Error::format(&folder, "views", "a front view"))?;
+        Ok(SampleImages { camera: sample.camera, domains, inputs })
     }
 }
 
@@ -286,9 +312,11 @@ pub struct EncodedSample {
     /// Latents (VAE mean × scaling factor) of the 6 views, `[6, c, h, w]`, per
     /// [`TrainDomain`].
     pub latents: [Tensor<4>; 3],
-    /// CLIP image embeddings `[1, d]` of each domain's front view (stage 1 conditions on the
-    /// front view of the domain it generates; stages 2 and 3 on the colour one).
-    pub front_embeds: [Tensor<2>; 3],
+    /// Latents `[1, c, h, w]` of each domain's condition image ([`SampleImages::inputs`]).
+    pub input_latents: [Tensor<4>; 3],
+    /// CLIP image embeddings `[1, d]` of each domain's condition image (stage 1 conditions on
+    /// the domain it generates; stages 2 and 3 on colour).
+    pub input_embeds: [Tensor<2>; 3],
 }
 
 impl EncodedSample {
@@ -296,21 +324,26 @@ impl EncodedSample {
     /// be the pipeline's size).
     pub fn encode(pipeline: &MultiViewPipeline, images: &SampleImages, device: &Device) -> Result<Self, Error> {
         let mut latents = Vec::with_capacity(3);
-        let mut embeds = Vec::with_capacity(3);
         for views in &images.domains {
-            let mut per_view = Vec::with_capacity(NUM_VIEWS);
-            for (i, image) in views.iter().enumerate() {
-                let condition = pipeline.condition(image, device)?;
-                if i == 0 {
-                    embeds.push(condition.embeds);
-                }
-                per_view.push(condition.latent);
-            }
+            let per_view: Vec<Tensor<4>> =
+                views.iter().map(|image| pipeline.image_latent(image, device)).collect::<Result<_, _>>()?;
             latents.push(Tensor::cat(per_view, 0));
         }
+        let mut input_latents = Vec::with_capacity(3);
+        let mut input_embeds = Vec::with_capacity(3);
+        for input in &images.inputs {
+            let condition = pipeline.condition(input, device)?;
+            input_latents.push(condition.latent);
+            input_embeds.push(condition.embeds);
+        }
         let array = |v: Vec<Tensor<4>>| -> [Tensor<4>; 3] { v.try_into().expect("three domains") };
-        let embeds: [Tensor<2>; 3] = embeds.try_into().expect("three domains");
-        Ok(Self { camera: images.camera, latents: array(latents), front_embeds: embeds })
+        let embeds: [Tensor<2>; 3] = input_embeds.try_into().expect("three domains");
+        Ok(Self {
+            camera: images.camera,
+            latents: array(latents),
+            input_latents: array(input_latents),
+            input_embeds: embeds,
+        })
     }
 
     /// A copy on `device` (e.g. the trainer's autodiff device).
@@ -318,15 +351,16 @@ impl EncodedSample {
         Self {
             camera: self.camera,
             latents: self.latents.clone().map(|t| t.to_device(device)),
-            front_embeds: self.front_embeds.clone().map(|t| t.to_device(device)),
+            input_latents: self.input_latents.clone().map(|t| t.to_device(device)),
+            input_embeds: self.input_embeds.clone().map(|t| t.to_device(device)),
         }
     }
 }
 
 /// Assembles the batch of `stage` from `samples` (one object each): stage 3 takes both the
 /// normal and the colour views of every object (`domains` ignored); stages 1 and 2 take the
-/// views of `domains[i]` for object `i`. The condition is the colour front view, or in
-/// stage 1 the front view of the object's domain. `class_dim` is the UNet's
+/// views of `domains[i]` for object `i`. The condition is the colour input image, or in
+/// stage 1 the input image of the object's domain. `class_dim` is the UNet's
 /// `projection_class_embeddings_input_dim` (14 or 10).
 pub fn assemble_batch(
     stage: Stage,
@@ -363,10 +397,9 @@ pub fn assemble_batch(
         let s = samples[object];
         latents.push(s.latents[domain.index()].clone());
         let source = if stage == Stage::MultiDomain { domain.index() } else { TrainDomain::Colour.index() };
-        let front = s.latents[source].clone().narrow(0, 0, 1);
-        condition.push(front.repeat_dim(0, NUM_VIEWS));
-        let [_, d] = s.front_embeds[source].dims();
-        embeds.push(s.front_embeds[source].clone().reshape([1, 1, d]).repeat_dim(0, NUM_VIEWS));
+        condition.push(s.input_latents[source].clone().repeat_dim(0, NUM_VIEWS));
+        let [_, d] = s.input_embeds[source].dims();
+        embeds.push(s.input_embeds[source].clone().reshape([1, 1, d]).repeat_dim(0, NUM_VIEWS));
         labels.extend(task_labels(domain.task(stage), s.camera, class_dim)?);
     }
     let device = samples[0].latents[0].device();

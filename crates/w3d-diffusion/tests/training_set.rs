@@ -93,6 +93,14 @@ fn model_images_share_the_samples_background() {
     assert_eq!(masks[0].pixel(SIZE / 2, SIZE / 2), [1.0, 1.0, 1.0]);
     let black = set.images(0).unwrap();
     assert_eq!(black.domains[1][0].pixel(0, 0), [0.0, 0.0, 0.0]);
+    // The input image is the front view framed as inference frames a photo: the disc (60 % of
+    // the side) grows to 75 %, on the sample's background.
+    let input = &images.inputs[1];
+    let grey = f32::from(w3d_diffusion::quantize_u8(0.5)) / 255.0; // 8-bit, truncated as inference
+    assert_eq!(input.pixel(0, 0), [grey; 3]);
+    let row = SIZE / 2;
+    let covered = (0..SIZE).filter(|&x| input.pixel(x, row) != [grey; 3]).count() as f32 / SIZE as f32;
+    assert!((covered - 0.75).abs() < 0.07, "input covers {covered} of its width");
 }
 
 #[test]
@@ -113,8 +121,9 @@ fn batches_of_the_three_stages_have_the_authors_layout() {
     let same = |a: w3d_diffusion::Tensor<4>, b: w3d_diffusion::Tensor<4>| common::max_abs_diff(a, b) == 0.0;
     assert!(same(joint.latents.clone().narrow(0, 0, 6), encoded[0].latents[0].clone()));
     assert!(same(joint.latents.clone().narrow(0, 12, 6), encoded[0].latents[1].clone()));
-    // Stages 2 and 3 condition on the colour front view.
-    assert!(same(joint.condition_latents.clone().narrow(0, 0, 1), encoded[0].latents[1].clone().narrow(0, 0, 1)));
+    // Stages 2 and 3 condition on the colour input image (the front view, framed as inference frames a photo).
+    assert!(same(joint.condition_latents.clone().narrow(0, 0, 1), encoded[0].input_latents[1].clone()));
+    assert!(same(joint.condition_latents.clone().narrow(0, 17, 1), encoded[0].input_latents[1].clone()));
     let labels = common::values(joint.class_labels.clone().unwrap());
     // task switch sin values: columns 5, 6 (normal [1, 0]) for row 0, colour [0, 1] for row 12.
     assert!((labels[5] - 1f32.sin()).abs() < 1e-6 && labels[6].abs() < 1e-6);
@@ -126,10 +135,10 @@ fn batches_of_the_three_stages_have_the_authors_layout() {
     let e = assemble_batch(Stage::MixedDomain, &refs, &[TrainDomain::Mask, TrainDomain::Normal], 14).unwrap_err();
     assert!(e.to_string().contains("domains"), "{e}");
 
-    // Stage 1: no switcher (task [0, 0]); the condition is the front view of the same domain.
+    // Stage 1: no switcher (task [0, 0]); the condition is the input image of the same domain.
     let multi = assemble_batch(Stage::MultiDomain, &refs, &[TrainDomain::Mask, TrainDomain::Normal], 14).unwrap();
-    assert!(same(multi.condition_latents.clone().narrow(0, 0, 1), encoded[0].latents[2].clone().narrow(0, 0, 1)));
-    assert!(same(multi.condition_latents.clone().narrow(0, 6, 1), encoded[1].latents[0].clone().narrow(0, 0, 1)));
+    assert!(same(multi.condition_latents.clone().narrow(0, 0, 1), encoded[0].input_latents[2].clone()));
+    assert!(same(multi.condition_latents.clone().narrow(0, 6, 1), encoded[1].input_latents[0].clone()));
     let labels = common::values(multi.class_labels.unwrap());
     assert!(labels[5].abs() < 1e-6 && labels[6].abs() < 1e-6, "stage 1 task label must be [0, 0]");
 }
