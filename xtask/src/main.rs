@@ -45,6 +45,7 @@ use std::process::{Command, ExitCode};
 use clap::{Parser, Subcommand};
 
 mod chart;
+mod eval_small;
 mod recon;
 mod robust;
 mod train_small;
@@ -76,6 +77,19 @@ enum Task {
         /// A few steps of each phase only (checks the recipe and times its steps).
         #[arg(long)]
         quick: bool,
+    },
+    /// Score the small model: generated views and reconstructed meshes of training objects
+    /// and the held-out one against the truth; docs/img/small_model.png.
+    EvalSmall {
+        /// Model directory.
+        #[arg(long, default_value = "target/train-small/model")]
+        model: PathBuf,
+        /// Output folder (generated views, meshes, eval.json).
+        #[arg(long, default_value = "target/eval-small")]
+        out: PathBuf,
+        /// DDIM steps.
+        #[arg(long, default_value_t = 50)]
+        steps: usize,
     },
     /// Regenerate committed test fixtures with the Python peer tools.
     Fixtures {
@@ -538,6 +552,7 @@ fn main() -> ExitCode {
         Task::LoadGlb { files, vertices, triangles } => load_glb(&files, vertices, triangles),
         Task::Fixtures { which } => fixtures(&which),
         Task::TrainSmall { out, quick } => train_small::run(&out, quick),
+        Task::EvalSmall { model, out, steps } => eval_small::run(&model, &out, steps),
         Task::Bench { suite, criterion_args } => bench(&suite, &criterion_args),
     };
     match result {

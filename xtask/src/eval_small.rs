@@ -1,0 +1,153 @@
+//! `cargo xtask eval-small [--model DIR]`: the small model from images to meshes, scored
+//! (`docs/training.md`): for training objects and the held-out one, the front colour view of
+//! a dataset sample (seed 0, sample 0: a training sample for the training objects) goes
+//! through `MultiViewPipeline::generate`; the 6 generated normal maps are compared with the
+//! truth inside the true masks (mean angular error), the generated masks with the true ones
+//! (IoU), and the mesh reconstructed from the generated views with the posed object
+//! (Chamfer distance, both normalised into the unit cube). Writes
+//! `target/eval-small/eval.json` and the contact sheet `docs/img/small_model.png`.
+
+use std::path::Path;
+use std::time::Instant;
+
+use wonder3d::dataset::{Dataset, DatasetOptions, id_stem, sample_draw};
+use wonder3d::diffusion::{CameraType, MultiViewPipeline, SampleOptions, SamplerKind};
+use wonder3d::eval::{EvalOptions, evaluate};
+use wonder3d::recon::{Preset, ReconOptions, reconstruct};
+use wonder3d::sheet::{SheetRow, contact_sheet, normal_picture};
+use wonder3d::{Image, ViewSet};
+
+use crate::train_small::{HELD_OUT_MESH, TRAIN_MESHES};
+
+fn err(e: impl std::fmt::Display) -> String {
+    e.to_string()
+}
+
+/// Mean angle (degrees) between true and generated normals over the true mask, and the IoU
+/// of the generated masks with the true ones (mask ≥ 0.5), over all views.
+fn compare(truth: &ViewSet, generated: &ViewSet) -> (f64, f64) {
+    let (mut angle, mut count, mut inter, mut union) = (0.0f64, 0usize, 0usize, 0usize);
+    for (t, g) in truth.views().iter().zip(generated.views()) {
+        let (tn, gn) = (t.normal.data(), g.normal.data());
+        for (i, (&tm, &gm)) in t.mask.data().iter().zip(g.mask.data()).enumerate() {
+            let (a, b) = (tm >= 0.5, gm >= 0.5);
+            inter += usize::from(a && b);
+            union += usize::from(a || b);
+            if a {
+                let (u, v) = (&tn[3 * i..3 * i + 3], &gn[3 * i..3 * i + 3]);
+                let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                let cos = if len > 0.0 { (u[0] * v[0] + u[1] * v[1] + u[2] * v[2]) / len } else { 0.0 };
+                angle += f64::from(cos.clamp(-1.0, 1.0).acos().to_degrees());
+                count += 1;
+            }
+        }
+    }
+    (angle / count.max(1) as f64, inter as f64 / union.max(1) as f64)
+}
+
+pub(crate) fn run(model: &Path, out: &Path, steps: usize) -> Result<(), String> {
+    let root = crate::workspace_root();
+    let device = wonder3d::diffusion::default_device();
+    let pipeline = MultiViewPipeline::from_dir(model, &device).map_err(err)?;
+    let size = pipeline.image_size() as u32;
+    std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
+    let picks = [TRAIN_MESHES[0], TRAIN_MESHES[3], TRAIN_MESHES[6], TRAIN_MESHES[5], HELD_OUT_MESH];
+    let mut rows = Vec::new();
+    let mut records = Vec::new();
+    for mesh_path in picks {
+        let held_out = mesh_path == HELD_OUT_MESH;
+        let path = root.join(mesh_path);
+        let options = DatasetOptions::default().with_samples(1).with_size(size).with_seed(0);
+        let dataset = Dataset::prepare(&[&path], &options).map_err(err)?;
+        let sample = dataset.samples().next().cloned().ok_or("no sample")?;
+        let truth = dataset.render_sample(0).map_err(err)?;
+        // The draw of this sample (seed 0, index 0), as the dataset made it.
+        let draw = sample_draw(0, &id_stem(&path), 0, None);
+        let posed = dataset.objects()[0].posed(&draw).map_err(err)?;
+        let front = &truth.views()[0];
+        let colour = front.colour.as_ref().ok_or("no colour view")?;
+        let rgba: Vec<f32> =
+            colour.data().chunks_exact(3).zip(front.mask.data()).flat_map(|(c, &m)| [c[0], c[1], c[2], m]).collect();
+        let rgba = Image::new(size, size, 4, rgba).map_err(err)?;
+        let camera = match sample.camera.name() {
+            "persp" => CameraType::Perspective,
+            _ => CameraType::Orthographic,
+        };
+        let sample_options =
+            SampleOptions { sampler: SamplerKind::Ddim, steps, guidance: 2.0, eta: 0.0, camera, seed: 42 };
+        let t = Instant::now();
+        let generated = pipeline.generate(&rgba, &sample_options, &device, &mut |_, _| {}).map_err(err)?;
+        let generate_s = t.elapsed().as_secs_f64();
+        let views = generated.to_view_set().map_err(err)?;
+        let (angle, iou) = compare(&truth, &views);
+        let name = Path::new(mesh_path).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        views.save(out.join(&name)).map_err(err)?;
+        let recon = reconstruct(&views, &ReconOptions::preset(Preset::Default), &mut |_| {});
+        let chamfer = match &recon {
+            Ok((mesh, _)) => {
+                wonder3d::save_mesh(out.join(format!("{name}.obj")), mesh).map_err(err)?;
+                let metrics = evaluate(mesh, &posed, &EvalOptions::default().with_normalize_pred(true)).map_err(err)?;
+                Some(metrics.chamfer)
+            }
+            Err(e) => {
+                eprintln!("{name}: reconstruction failed: {e}");
+                None
+            }
+        };
+        eprintln!(
+            "{name:>22} ({}): normal error {angle:5.1}°, mask IoU {iou:.3}, CD {}, generation {generate_s:.1} s",
+            if held_out { "held out" } else { "training" },
+            chamfer.map_or("-".into(), |c| format!("{c:.4}"))
+        );
+        records.push(serde_json::json!({
+            "object": name, "held_out": held_out, "camera": sample.camera.name(),
+            "normal_angle_deg": angle, "mask_iou": iou, "chamfer": chamfer, "generate_seconds": generate_s,
+            "steps": steps, "sampler": "ddim", "guidance": 2.0,
+        }));
+        let input = wonder3d::diffusion::prepare_input(&rgba, size).map_err(err)?;
+        let pictures = |set: &ViewSet| -> Result<Vec<Image>, String> {
+            set.views().iter().map(|v| normal_picture(&v.normal, &v.mask).map_err(err)).collect()
+        };
+        let mut gen_row = vec![input.clone()];
+        gen_row.extend(pictures(&views)?);
+        gen_row.extend(generated.colours.iter().cloned());
+        let mut true_row = vec![input];
+        true_row.extend(pictures(&truth)?);
+        for v in truth.views() {
+            let colour = v.colour.as_ref().ok_or("no colour view")?;
+            let on_white: Vec<f32> = colour
+                .data()
+                .chunks_exact(3)
+                .zip(v.mask.data())
+                .flat_map(|(c, &m)| c.iter().map(move |&x| x * m + (1.0 - m)).collect::<Vec<_>>())
+                .collect();
+            true_row.push(Image::new(size, size, 3, on_white).map_err(err)?);
+        }
+        let tag = if held_out { " (held out)" } else { "" };
+        rows.push(SheetRow { label: format!("{name}{tag}: generated"), images: gen_row });
+        rows.push(SheetRow { label: format!("{name}: truth"), images: true_row });
+    }
+    let labels = [
+        "input",
+        "n front",
+        "n f-right",
+        "n right",
+        "n back",
+        "n left",
+        "n f-left",
+        "c front",
+        "c f-right",
+        "c right",
+        "c back",
+        "c left",
+        "c f-left",
+    ];
+    let sheet = contact_sheet(&labels, &rows).map_err(err)?;
+    let picture = root.join("docs").join("img").join("small_model.png");
+    sheet.write_png(&picture).map_err(err)?;
+    let record = serde_json::json!({ "model": model.display().to_string(), "objects": records });
+    std::fs::write(out.join("eval.json"), serde_json::to_vec_pretty(&record).map_err(err)?)
+        .map_err(|e| format!("{}: {e}", out.display()))?;
+    eprintln!("wrote {} and {}", out.join("eval.json").display(), picture.display());
+    Ok(())
+}
