@@ -14,7 +14,7 @@ use w3d_core::Error;
 
 use crate::config::ClipVisionConfig;
 use crate::nn::{LayerNorm, Linear, multi_head_attention};
-use crate::weights::{Init, NamedParam, ParamSource, SafetensorsFile};
+use crate::weights::{Init, NamedParam, ParamSource, Precision, SafetensorsFile};
 
 /// Per-channel RGB mean of CLIP's normalisation (pixels in `[0, 1]`).
 #[allow(clippy::excessive_precision)] // the published constants, digit for digit
@@ -85,12 +85,17 @@ impl ClipVision {
     /// Writes `config.json` and `model.safetensors` (f32, transformers keys) into `dir`, the
     /// `image_encoder/` folder of a checkpoint ([`ClipVision::from_dir`] reads it back).
     pub fn save(&self, dir: impl AsRef<Path>) -> Result<(), Error> {
+        self.save_with(dir, Precision::F32)
+    }
+
+    /// [`Self::save`] with the weights in `precision`.
+    pub fn save_with(&self, dir: impl AsRef<Path>, precision: Precision) -> Result<(), Error> {
         let tensors = crate::weights::collect_named(self, &self.names)?;
         let config = crate::weights::config_json(
             &self.config,
             &[("model_type", "clip_vision_model"), ("architectures", "CLIPVisionModelWithProjection")],
         )?;
-        crate::weights::write_checkpoint(dir.as_ref(), "model.safetensors", &tensors, &config)
+        crate::weights::write_checkpoint(dir.as_ref(), "model.safetensors", &tensors, &config, precision)
     }
 
     /// The config this model was built from.

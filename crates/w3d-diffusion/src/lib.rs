@@ -61,7 +61,7 @@ pub use scheduler::{
 };
 pub use unet::UNet;
 pub use vae::Vae;
-pub use weights::{NamedParam, NamedValues, SafetensorsFile};
+pub use weights::{NamedParam, NamedValues, Precision, SafetensorsFile};
 
 /// The default CPU device: Burn's `flex` backend (gemm-crate matmul, rayon threads), measured
 /// faster than `ndarray` on this crate's models (see `docs/benchmarks.md`).

@@ -47,6 +47,7 @@ use crate::scheduler::{
 };
 use crate::unet::UNet;
 use crate::vae::Vae;
+use crate::weights::Precision;
 
 /// Views generated per domain, in rig order: front, front_right, right, back, left,
 /// front_left (`w3d_core::rig::WONDER3D_VIEW_NAMES`).
@@ -457,15 +458,20 @@ impl MultiViewPipeline {
     /// (`w3d_core::io::write_dir_atomic`), replacing an existing `dir`, so an interrupted save
     /// never leaves a partial model.
     pub fn save(&self, dir: impl AsRef<Path>) -> Result<(), Error> {
-        w3d_core::io::write_dir_atomic(dir, |staging| self.write_into(staging))
+        self.save_with(dir, Precision::F32)
+    }
+
+    /// [`MultiViewPipeline::save`] with the weights in `precision` (f16 halves the size).
+    pub fn save_with(&self, dir: impl AsRef<Path>, precision: Precision) -> Result<(), Error> {
+        w3d_core::io::write_dir_atomic(dir, |staging| self.write_into(staging, precision))
     }
 
     /// The files of [`MultiViewPipeline::save`], written into the existing folder `staging`.
-    pub(crate) fn write_into(&self, staging: &Path) -> Result<(), Error> {
+    pub(crate) fn write_into(&self, staging: &Path, precision: Precision) -> Result<(), Error> {
         {
-            self.unet.save(staging.join("unet"))?;
-            self.vae.save(staging.join("vae"))?;
-            self.clip.save(staging.join("image_encoder"))?;
+            self.unet.save_with(staging.join("unet"), precision)?;
+            self.vae.save_with(staging.join("vae"), precision)?;
+            self.clip.save_with(staging.join("image_encoder"), precision)?;
             let scheduler = crate::weights::config_json(&self.scheduler, &[("_class_name", "DDIMScheduler")])?;
             let scheduler_dir = staging.join("scheduler");
             std::fs::create_dir_all(&scheduler_dir).map_err(|e| Error::io(&scheduler_dir, e))?;

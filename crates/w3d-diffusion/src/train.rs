@@ -40,7 +40,7 @@ use w3d_core::Error;
 use crate::config::SchedulerConfig;
 use crate::scheduler::{DdimScheduler, Prediction, gaussian_noise};
 use crate::unet::UNet;
-use crate::weights::NamedValues;
+use crate::weights::{NamedValues, Precision};
 
 /// The training stages of Wonder3D++ (`docs/training.md`; the authors' config file names do
 /// not match the paper's stage names).
@@ -818,7 +818,7 @@ impl Trainer {
             seed: self.options.seed,
         };
         let json = serde_json::to_value(&state).map_err(|e| Error::invalid("trainer state", e.to_string()))?;
-        crate::weights::write_checkpoint_named(dir, OPTIMIZER_FILE, &tensors, STATE_FILE, &json)
+        crate::weights::write_checkpoint_named(dir, OPTIMIZER_FILE, &tensors, STATE_FILE, &json, Precision::F32)
     }
 
     /// Restores what [`Trainer::write_state`] wrote in `dir`: step, RNG and the moments of
@@ -1036,7 +1036,7 @@ pub fn run_training(
         let pipeline =
             crate::MultiViewPipeline::new(trainer.inference_unet(), vae.clone(), clip.clone(), scheduler.clone())?;
         w3d_core::io::write_dir_atomic(&checkpoint, |staging| {
-            pipeline.write_into(staging)?;
+            pipeline.write_into(staging, Precision::F32)?;
             trainer.write_state(staging)
         })
     };

@@ -39,7 +39,7 @@ use crate::blocks::{
 };
 use crate::config::UNetConfig;
 use crate::nn::{Conv2d, GroupNorm};
-use crate::weights::{NamedParam, ParamSource, SafetensorsFile};
+use crate::weights::{NamedParam, ParamSource, Precision, SafetensorsFile};
 
 /// One down level: ResNets (each optionally followed by a transformer) and a down-sampler.
 #[derive(Module, Debug)]
@@ -170,11 +170,16 @@ impl UNet {
     /// under a temporary name and renamed, so an interrupted save never leaves a truncated
     /// file under the real name.
     pub fn save(&self, dir: impl AsRef<Path>) -> Result<(), Error> {
+        self.save_with(dir, Precision::F32)
+    }
+
+    /// [`Self::save`] with the weights in `precision`.
+    pub fn save_with(&self, dir: impl AsRef<Path>, precision: Precision) -> Result<(), Error> {
         let dir = dir.as_ref();
         let tensors = crate::weights::collect_named(self, &self.names)?;
         let class = if self.config.num_views.is_some() { "UNetMV2DConditionModel" } else { "UNet2DConditionModel" };
         let config = crate::weights::config_json(&self.config, &[("_class_name", class)])?;
-        crate::weights::write_checkpoint(dir, "diffusion_pytorch_model.safetensors", &tensors, &config)
+        crate::weights::write_checkpoint(dir, "diffusion_pytorch_model.safetensors", &tensors, &config, precision)
     }
 
     /// The config this model was built from.

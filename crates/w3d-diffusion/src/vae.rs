@@ -12,7 +12,7 @@ use w3d_core::Error;
 use crate::blocks::{Downsample, ResnetBlock, ResnetShape, Upsample};
 use crate::config::VaeConfig;
 use crate::nn::{Conv2d, GroupNorm, Linear, multi_head_attention};
-use crate::weights::{NamedParam, ParamSource, SafetensorsFile};
+use crate::weights::{NamedParam, ParamSource, Precision, SafetensorsFile};
 
 /// GroupNorm epsilon used everywhere in the VAE.
 const VAE_EPS: f64 = 1e-6;
@@ -138,9 +138,20 @@ impl Vae {
     /// Writes `config.json` and `diffusion_pytorch_model.safetensors` (f32, diffusers keys)
     /// into `dir`, the `vae/` folder of a checkpoint ([`Vae::from_dir`] reads it back).
     pub fn save(&self, dir: impl AsRef<Path>) -> Result<(), Error> {
+        self.save_with(dir, Precision::F32)
+    }
+
+    /// [`Self::save`] with the weights in `precision`.
+    pub fn save_with(&self, dir: impl AsRef<Path>, precision: Precision) -> Result<(), Error> {
         let tensors = crate::weights::collect_named(self, &self.names)?;
         let config = crate::weights::config_json(&self.config, &[("_class_name", "AutoencoderKL")])?;
-        crate::weights::write_checkpoint(dir.as_ref(), "diffusion_pytorch_model.safetensors", &tensors, &config)
+        crate::weights::write_checkpoint(
+            dir.as_ref(),
+            "diffusion_pytorch_model.safetensors",
+            &tensors,
+            &config,
+            precision,
+        )
     }
 
     /// The config this model was built from.

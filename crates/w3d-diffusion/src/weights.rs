@@ -503,8 +503,20 @@ pub(crate) fn write_checkpoint(
     weights_file: &str,
     tensors: &[NamedValues],
     config: &serde_json::Value,
+    precision: Precision,
 ) -> Result<(), Error> {
-    write_checkpoint_named(dir, weights_file, tensors, "config.json", config)
+    write_checkpoint_named(dir, weights_file, tensors, "config.json", config, precision)
+}
+
+/// The number format weights are written in.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Precision {
+    /// 32-bit floats: exactly the values the model computes with.
+    #[default]
+    F32,
+    /// IEEE half precision (what the published Wonder3D weights use): half the bytes; each
+    /// value rounded to the nearest f16 (a relative change of at most 2⁻¹¹).
+    F16,
 }
 
 /// As [`write_checkpoint`] with the JSON file named `json_file`.
@@ -514,16 +526,25 @@ pub(crate) fn write_checkpoint_named(
     tensors: &[NamedValues],
     json_file: &str,
     config: &serde_json::Value,
+    precision: Precision,
 ) -> Result<(), Error> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let bytes: Vec<(String, Vec<usize>, Vec<u8>)> = tensors
-        .iter()
-        .map(|t| (t.key.clone(), t.shape.clone(), t.values.iter().flat_map(|x| x.to_le_bytes()).collect()))
-        .collect();
+    let encode = |values: &[f32]| -> Vec<u8> {
+        match precision {
+            Precision::F32 => values.iter().flat_map(|x| x.to_le_bytes()).collect(),
+            Precision::F16 => values.iter().flat_map(|x| half::f16::from_f32(*x).to_le_bytes()).collect(),
+        }
+    };
+    let dtype = match precision {
+        Precision::F32 => Dtype::F32,
+        Precision::F16 => Dtype::F16,
+    };
+    let bytes: Vec<(String, Vec<usize>, Vec<u8>)> =
+        tensors.iter().map(|t| (t.key.clone(), t.shape.clone(), encode(&t.values))).collect();
     let views = bytes
         .iter()
         .map(|(k, shape, b)| {
-            safetensors::tensor::TensorView::new(Dtype::F32, shape.clone(), b).map(|view| (k.clone(), view))
+            safetensors::tensor::TensorView::new(dtype, shape.clone(), b).map(|view| (k.clone(), view))
         })
         .collect::<Result<Vec<_>, _>>()
         .map_err(|e| Error::invalid("checkpoint", format!("consistent tensor shapes ({e})")))?;

@@ -386,3 +386,24 @@ fn from_pretrained_2d_widens_conv_in_and_adds_the_switcher_embedding() {
     let e = UNet::from_pretrained_2d(&wider, &weights, 3, &device).unwrap_err().to_string();
     assert!(e.contains("wrong shape"), "{e}");
 }
+
+#[test]
+fn half_precision_checkpoints_round_each_weight_to_f16() {
+    let device = w3d_diffusion::default_device();
+    let unet = UNet::random(&tiny_config(), 31, &device).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    unet.save_with(dir.path(), w3d_diffusion::Precision::F16).unwrap();
+    let f32_bytes = {
+        let other = tempfile::tempdir().unwrap();
+        unet.save(other.path()).unwrap();
+        std::fs::metadata(other.path().join("diffusion_pytorch_model.safetensors")).unwrap().len()
+    };
+    let f16_bytes = std::fs::metadata(dir.path().join("diffusion_pytorch_model.safetensors")).unwrap().len();
+    assert!(f16_bytes * 10 < f32_bytes * 6, "f16 file {f16_bytes} B vs f32 {f32_bytes} B");
+    let loaded = UNet::from_dir(dir.path(), &device).unwrap();
+    let (a, b) = (params_by_key(&unet), params_by_key(&loaded));
+    for (key, v) in &a {
+        let rounded: Vec<f32> = v.iter().map(|x| half::f16::from_f32(*x).to_f32()).collect();
+        assert_eq!(&rounded, &b[key], "{key}");
+    }
+}
