@@ -2,6 +2,9 @@
 //! say and nothing else, accumulation averages, checkpoints round-trip, bad draws are refused.
 
 mod common;
+// The training-set reader's tests share this test binary (one link instead of two).
+#[path = "train_cases/training_set.rs"]
+mod training_set;
 
 use std::collections::HashMap;
 

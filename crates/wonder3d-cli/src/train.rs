@@ -5,7 +5,7 @@
 
 use std::path::PathBuf;
 
-use wonder3d::{Error, Result};
+use wonder3d::Result;
 
 /// Arguments of `wonder3d train`.
 #[derive(clap::Args)]
@@ -60,6 +60,7 @@ pub struct TrainArgs {
 #[cfg(feature = "diffusion")]
 pub fn run(args: &TrainArgs) -> Result<()> {
     use indicatif::{ProgressBar, ProgressStyle};
+    use wonder3d::Error;
     use wonder3d::diffusion::train::{RunEvent, RunOptions, Stage, TrainOptions, run_training};
     use wonder3d::diffusion::training_set::TrainingSet;
     use wonder3d::diffusion::{MultiViewPipeline, default_device};

@@ -2,6 +2,9 @@
 //! and bad input refused before any rendering with nothing written.
 
 mod common;
+// `wonder3d train`'s tests share this test binary (one link instead of two).
+#[path = "dataset_cases/train.rs"]
+mod train;
 
 use std::path::{Path, PathBuf};
 

@@ -1,9 +1,7 @@
 //! `wonder3d train`: a stage run on the tiny model, resumed, its checkpoint generating views;
 //! bad input refused before the model loads.
 
-mod common;
-
-use common::{tiny_weights, wonder3d};
+use crate::common::{tiny_weights, wonder3d};
 
 fn stderr(out: &std::process::Output) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()

@@ -1,11 +1,9 @@
 //! The training-set reader: model images composited on the sample's background, encoded
 //! once, assembled into the batches of the three stages; malformed sets refused by name.
 
-mod common;
-
 use std::path::Path;
 
-use common::fixture;
+use crate::common::fixture;
 use w3d_core::{Image, ViewImages, ViewSet};
 use w3d_diffusion::train::Stage;
 use w3d_diffusion::training_set::{EncodedSample, TrainDomain, TrainingSet, assemble_batch};
@@ -118,13 +116,13 @@ fn batches_of_the_three_stages_have_the_authors_layout() {
     assert_eq!(joint.domains, 2);
     assert_eq!(joint.image_embeddings.dims()[0], 24);
     // Normal half first: image 0 is object a's normal front view, image 12 its colour front.
-    let same = |a: w3d_diffusion::Tensor<4>, b: w3d_diffusion::Tensor<4>| common::max_abs_diff(a, b) == 0.0;
+    let same = |a: w3d_diffusion::Tensor<4>, b: w3d_diffusion::Tensor<4>| crate::common::max_abs_diff(a, b) == 0.0;
     assert!(same(joint.latents.clone().narrow(0, 0, 6), encoded[0].latents[0].clone()));
     assert!(same(joint.latents.clone().narrow(0, 12, 6), encoded[0].latents[1].clone()));
     // Stages 2 and 3 condition on the colour input image (the front view, framed as inference frames a photo).
     assert!(same(joint.condition_latents.clone().narrow(0, 0, 1), encoded[0].input_latents[1].clone()));
     assert!(same(joint.condition_latents.clone().narrow(0, 17, 1), encoded[0].input_latents[1].clone()));
-    let labels = common::values(joint.class_labels.clone().unwrap());
+    let labels = crate::common::values(joint.class_labels.clone().unwrap());
     // task switch sin values: columns 5, 6 (normal [1, 0]) for row 0, colour [0, 1] for row 12.
     assert!((labels[5] - 1f32.sin()).abs() < 1e-6 && labels[6].abs() < 1e-6);
     assert!(labels[12 * 14 + 5].abs() < 1e-6 && (labels[12 * 14 + 6] - 1f32.sin()).abs() < 1e-6);
@@ -139,7 +137,7 @@ fn batches_of_the_three_stages_have_the_authors_layout() {
     let multi = assemble_batch(Stage::MultiDomain, &refs, &[TrainDomain::Mask, TrainDomain::Normal], 14).unwrap();
     assert!(same(multi.condition_latents.clone().narrow(0, 0, 1), encoded[0].input_latents[2].clone()));
     assert!(same(multi.condition_latents.clone().narrow(0, 6, 1), encoded[1].input_latents[0].clone()));
-    let labels = common::values(multi.class_labels.unwrap());
+    let labels = crate::common::values(multi.class_labels.unwrap());
     assert!(labels[5].abs() < 1e-6 && labels[6].abs() < 1e-6, "stage 1 task label must be [0, 0]");
 }
 
