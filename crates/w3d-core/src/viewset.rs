@@ -237,23 +237,8 @@ impl ViewSet {
     pub fn check_output_dir(dir: impl AsRef<Path>) -> Result<()> {
         let dir = dir.as_ref();
         let field = || format!("output folder {}", dir.display());
-        if dir.file_name().is_none() {
-            return Err(Error::invalid(field(), "a folder name (not `.`, `..` or a root)"));
-        }
-        match dir.parent() {
-            Some(p) if !p.as_os_str().is_empty() && !p.is_dir() => {
-                return Err(Error::invalid(
-                    field(),
-                    format!("a folder inside an existing one; create {} first", p.display()),
-                ));
-            }
-            _ => {}
-        }
-        match std::fs::symlink_metadata(dir) {
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
-            Err(e) => return Err(Error::io(dir, e)),
-            Ok(m) if !m.is_dir() => return Err(Error::invalid(field(), "a folder, but it is a file")),
-            Ok(_) => {}
+        if !crate::io::replaceable_folder(dir)? {
+            return Ok(());
         }
         for entry in std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))? {
             let entry = entry.map_err(|e| Error::io(dir, e))?;

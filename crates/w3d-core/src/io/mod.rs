@@ -97,6 +97,26 @@ pub fn write_atomic_all(files: &[(&Path, &[u8])]) -> Result<()> {
     Ok(())
 }
 
+/// The checks every output folder that a command replaces as a whole shares, made before any
+/// work: `dir` names a folder (not `.`, `..` or a root), its parent exists, and it is not a
+/// file. Returns whether `dir` exists (then the caller checks what it holds before it may be
+/// replaced).
+pub fn replaceable_folder(dir: &Path) -> Result<bool> {
+    let field = || format!("output folder {}", dir.display());
+    if dir.file_name().is_none() {
+        return Err(Error::invalid(field(), "a folder name (not `.`, `..` or a root)"));
+    }
+    if let Some(p) = dir.parent().filter(|p| !p.as_os_str().is_empty() && !p.is_dir()) {
+        return Err(Error::invalid(field(), format!("a folder inside an existing one; create {} first", p.display())));
+    }
+    match std::fs::symlink_metadata(dir) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(false),
+        Err(e) => Err(Error::io(dir, e)),
+        Ok(m) if !m.is_dir() => Err(Error::invalid(field(), "a folder, but it is a file")),
+        Ok(_) => Ok(true),
+    }
+}
+
 /// Writes a folder atomically: `fill` writes the folder's files into a fresh staging folder
 /// beside `dir` (`.<name>.partial-<pid>-<n>`), which then replaces `dir` as a whole (an
 /// existing `dir` is moved aside first and deleted only once the new one is in place). On
