@@ -524,12 +524,7 @@ impl Trainer {
     }
 
     fn next_u64(&mut self) -> u64 {
-        // splitmix64
-        self.rng = self.rng.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.rng;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
+        splitmix64(&mut self.rng)
     }
 
     fn uniform(&mut self) -> f64 {
@@ -677,6 +672,16 @@ fn clip_factor(grads: &HashMap<ParamId, Tensor<1>>, max: Option<f64>) -> Result<
         return Err(Error::invalid("gradients", format!("a finite norm (found {norm}); lower the learning rate")));
     }
     Ok((norm, max.map_or(1.0, |max| (max / (norm + 1e-6)).min(1.0))))
+}
+
+/// The next output of the SplitMix64 generator whose state is `state` (advanced): the random
+/// stream of training draws, a plain `u64` so a checkpoint can store and restore it.
+fn splitmix64(state: &mut u64) -> u64 {
+    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    let mut z = *state;
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
 }
 
 /// The value of a one-element loss, refused when not finite.
@@ -1177,13 +1182,7 @@ pub fn train_vae(
     let ids: HashSet<ParamId> = crate::weights::collect_named_ids(&vae).into_iter().collect();
     let mut moments = HashMap::new();
     let mut rng = options.seed ^ 0xA076_1D64_78BD_642F;
-    let mut next = move || {
-        rng = rng.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = rng;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    };
+    let mut next = move || splitmix64(&mut rng);
     let lr = options.learning_rate;
     let lr_of = |_: ParamId| lr;
     for step in 1..=options.steps {
