@@ -23,28 +23,6 @@ fn err(e: impl std::fmt::Display) -> String {
     e.to_string()
 }
 
-/// Mean angle (degrees) between true and generated normals over the true mask, and the IoU
-/// of the generated masks with the true ones (mask ≥ 0.5), over all views.
-fn compare(truth: &ViewSet, generated: &ViewSet) -> (f64, f64) {
-    let (mut angle, mut count, mut inter, mut union) = (0.0f64, 0usize, 0usize, 0usize);
-    for (t, g) in truth.views().iter().zip(generated.views()) {
-        let (tn, gn) = (t.normal.data(), g.normal.data());
-        for (i, (&tm, &gm)) in t.mask.data().iter().zip(g.mask.data()).enumerate() {
-            let (a, b) = (tm >= 0.5, gm >= 0.5);
-            inter += usize::from(a && b);
-            union += usize::from(a || b);
-            if a {
-                let (u, v) = (&tn[3 * i..3 * i + 3], &gn[3 * i..3 * i + 3]);
-                let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                let cos = if len > 0.0 { (u[0] * v[0] + u[1] * v[1] + u[2] * v[2]) / len } else { 0.0 };
-                angle += f64::from(cos.clamp(-1.0, 1.0).acos().to_degrees());
-                count += 1;
-            }
-        }
-    }
-    (angle / count.max(1) as f64, inter as f64 / union.max(1) as f64)
-}
-
 pub(crate) fn run(model: &Path, out: &Path, steps: usize) -> Result<(), String> {
     let root = crate::workspace_root();
     let device = wonder3d::diffusion::default_device();
@@ -63,7 +41,9 @@ pub(crate) fn run(model: &Path, out: &Path, steps: usize) -> Result<(), String> 
         let truth = dataset.render_sample(0).map_err(err)?;
         // The draw of this sample (seed 0, index 0), as the dataset made it.
         let draw = sample_draw(0, &id_stem(&path), 0, None);
-        let posed = dataset.objects()[0].posed(&draw).map_err(err)?;
+        // The object as rendered, then into the unit cube as the prediction is.
+        let mut posed = dataset.objects()[0].posed(&draw).map_err(err)?;
+        posed.normalize_unit_cube();
         let front = &truth.views()[0];
         let colour = front.colour.as_ref().ok_or("no colour view")?;
         let rgba: Vec<f32> =
@@ -79,7 +59,8 @@ pub(crate) fn run(model: &Path, out: &Path, steps: usize) -> Result<(), String> 
         let generated = pipeline.generate(&rgba, &sample_options, &device, &mut |_, _| {}).map_err(err)?;
         let generate_s = t.elapsed().as_secs_f64();
         let views = generated.to_view_set().map_err(err)?;
-        let (angle, iou) = compare(&truth, &views);
+        let agreement = wonder3d::eval::view_agreement(&truth, &views).map_err(err)?;
+        let (angle, iou) = (agreement.normal_angle_deg, agreement.mask_iou);
         let name = Path::new(mesh_path).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
         views.save(out.join(&name)).map_err(err)?;
         let recon = reconstruct(&views, &ReconOptions::preset(Preset::Default), &mut |_| {});

@@ -28,7 +28,9 @@
 //!   torch (CPU), diffusers, transformers, safetensors and pillow from PyPI.
 //! - `cargo xtask bench diffusion` also times diffusers' UNet on torch CPU (same config and
 //!   input, `xtask/python/bench_diffusion_torch.py`) with that Python, and records it and the
-//!   burn / torch ratios in `target/bench/diffusion.json`.
+//!   burn / torch ratios in `target/bench/diffusion.json`; `cargo xtask bench train` times
+//!   one training step of the tiny and the small multi-view UNet on flex and ndarray, and the
+//!   same step in PyTorch (`xtask/python/bench_train_torch.py`), with the ratios.
 //! - `cargo xtask validate-glb FILE...`: runs the Khronos glTF validator (npm package
 //!   `gltf-validator`, installed into `target/tools/node` on first use; needs `node` and
 //!   `npm`) and fails if any file has an error.
@@ -38,6 +40,10 @@
 //!   vertex and index counts of the file's accessors (and the given counts), uvs on every
 //!   mesh, and a base-colour texture wherever the file has one. Node has no image decoder,
 //!   so texture images are checked for being present, not decoded.
+//! - `cargo xtask train-small [--out DIR] [--quick]`, `cargo xtask eval-small [--model DIR]`,
+//!   `cargo xtask ship-small [--model DIR]`: the small model's recipe, its scores
+//!   (`docs/img/small_model.png`) and its f16 copy in `assets/model-small`
+//!   (`docs/training.md`).
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
@@ -63,7 +69,7 @@ enum Task {
     Deny,
     /// Run a criterion suite and collect its medians into target/bench/SUITE.json.
     Bench {
-        /// Suite name: the bench target `SUITE` of the crate `w3d-SUITE`.
+        /// Suite name: the bench target `SUITE` (of the crate `w3d-SUITE`; `train` is w3d-diffusion's).
         suite: String,
         /// Extra arguments passed to criterion (e.g. a filter, `--measurement-time 5`).
         #[arg(last = true)]
@@ -77,6 +83,13 @@ enum Task {
         /// A few steps of each phase only (checks the recipe and times its steps).
         #[arg(long)]
         quick: bool,
+    },
+    /// Put a trained model into assets/model-small with f16 weights (the model the
+    /// repository ships; provenance in assets/model-small.md).
+    ShipSmall {
+        /// Model directory (f32, as train-small writes it).
+        #[arg(long, default_value = "target/train-small/model")]
+        model: PathBuf,
     },
     /// Score the small model: generated views and reconstructed meshes of training objects
     /// and the held-out one against the truth; docs/img/small_model.png.
@@ -201,38 +214,43 @@ fn cpu_model() -> String {
         .unwrap_or_else(|| "unknown CPU".into())
 }
 
-/// Times diffusers' UNet on torch CPU (same config and input as the burn benchmark) and adds
-/// it, plus the burn / torch ratio of each burn backend, to `rows`.
-fn torch_comparison(rows: &mut Vec<serde_json::Value>) -> Result<(), String> {
+/// Runs `script` (torch CPU, the same work as a burn benchmark suite) and adds each of its
+/// JSON result lines, plus the burn / torch ratio of every burn row of the same benchmark
+/// (`<group>/<backend>` against `<group>/torch`), to `rows`.
+fn torch_comparison(script: &str, rows: &mut Vec<serde_json::Value>) -> Result<(), String> {
     let root = workspace_root();
     let output = Command::new(diffusion_python()?)
         .current_dir(&root)
-        .arg("xtask/python/bench_diffusion_torch.py")
+        .arg(script)
         .arg(&root)
         .output()
-        .map_err(|e| format!("cannot run the torch benchmark: {e}"))?;
+        .map_err(|e| format!("cannot run the torch benchmark {script}: {e}"))?;
     if !output.status.success() {
-        return Err(format!("torch benchmark failed: {}", String::from_utf8_lossy(&output.stderr)));
+        return Err(format!("torch benchmark {script} failed: {}", String::from_utf8_lossy(&output.stderr)));
     }
     let stdout = String::from_utf8_lossy(&output.stdout);
-    let torch: serde_json::Value = stdout
-        .lines()
-        .rev()
-        .find_map(|l| serde_json::from_str(l).ok())
-        .ok_or_else(|| format!("torch benchmark printed no JSON: {stdout}"))?;
-    let torch_ms = torch["median_ms"].as_f64().ok_or("torch benchmark: no median_ms")?;
-    let ratios: Vec<serde_json::Value> = rows
-        .iter()
-        .filter(|r| r["id"].as_str().is_some_and(|id| id.starts_with("unet_forward_b2_32x32/")))
-        .filter_map(|r| {
-            let ms = r["median_ms"].as_f64()?;
-            Some(serde_json::json!({ "id": format!("{} / torch", r["id"].as_str()?), "ratio": ms / torch_ms }))
-        })
-        .collect();
-    rows.push(serde_json::json!({ "id": "unet_forward_b2_32x32/torch", "median_ms": torch_ms, "mean_ms": null, "torch": torch }));
-    for r in ratios {
-        println!("{}: {:.2}", r["id"].as_str().unwrap_or(""), r["ratio"].as_f64().unwrap_or(f64::NAN));
-        rows.push(r);
+    let results: Vec<serde_json::Value> =
+        stdout.lines().filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok()).collect();
+    if results.is_empty() {
+        return Err(format!("torch benchmark {script} printed no JSON: {stdout}"));
+    }
+    for torch in results {
+        let id = torch["id"].as_str().ok_or("torch benchmark: no id")?.to_string();
+        let torch_ms = torch["median_ms"].as_f64().ok_or("torch benchmark: no median_ms")?;
+        let group = id.strip_suffix("/torch").ok_or("torch benchmark: an id ending in /torch")?.to_string();
+        let ratios: Vec<serde_json::Value> = rows
+            .iter()
+            .filter(|r| r["id"].as_str().is_some_and(|i| i.strip_prefix(&group).is_some_and(|b| b.starts_with('/'))))
+            .filter_map(|r| {
+                let ms = r["median_ms"].as_f64()?;
+                Some(serde_json::json!({ "id": format!("{} / torch", r["id"].as_str()?), "ratio": ms / torch_ms }))
+            })
+            .collect();
+        rows.push(serde_json::json!({ "id": id, "median_ms": torch_ms, "mean_ms": null, "torch": torch }));
+        for r in ratios {
+            println!("{}: {:.2}", r["id"].as_str().unwrap_or(""), r["ratio"].as_f64().unwrap_or(f64::NAN));
+            rows.push(r);
+        }
     }
     Ok(())
 }
@@ -256,8 +274,10 @@ fn bench(suite: &str, criterion_args: &[String]) -> Result<(), String> {
         let ms = |k: &str| v[k]["point_estimate"].as_f64().map(|ns| ns / 1e6);
         rows.push(serde_json::json!({ "id": id, "median_ms": ms("median"), "mean_ms": ms("mean") }));
     }
-    if suite == "diffusion" {
-        torch_comparison(&mut rows)?;
+    match suite {
+        "diffusion" => torch_comparison("xtask/python/bench_diffusion_torch.py", &mut rows)?,
+        "train" => torch_comparison("xtask/python/bench_train_torch.py", &mut rows)?,
+        _ => {}
     }
     let cores = std::thread::available_parallelism().map_or(0, |n| n.get());
     let report = serde_json::json!({
@@ -553,6 +573,7 @@ fn main() -> ExitCode {
         Task::Fixtures { which } => fixtures(&which),
         Task::TrainSmall { out, quick } => train_small::run(&out, quick),
         Task::EvalSmall { model, out, steps } => eval_small::run(&model, &out, steps),
+        Task::ShipSmall { model } => train_small::ship(&model),
         Task::Bench { suite, criterion_args } => bench(&suite, &criterion_args),
     };
     match result {

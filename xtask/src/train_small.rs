@@ -1,5 +1,5 @@
 //! `cargo xtask train-small`: the recipe of the small model shipped in `assets/model-small`
-//! (`docs/training.md`): a training set rendered from the CC0 / CC BY meshes, a small VAE
+//! (`docs/training.md`; `cargo xtask ship-small` puts a trained model there in f16): a training set rendered from the CC0 / CC BY meshes, a small VAE
 //! trained on its images, a frozen random CLIP image encoder, and the multi-view UNet trained
 //! through Wonder3D++'s three stages, each stage starting from the previous one.
 
@@ -44,8 +44,8 @@ impl Schedule {
         Self {
             samples: 12,
             size: 64,
-            vae_steps: 1500,
-            stage_steps: [2000, 3000, 1000],
+            vae_steps: 1200,
+            stage_steps: [800, 4000, 1000],
             stage_lr: [5e-4, 3e-4, 2e-4],
             objects_per_batch: 1,
         }
@@ -177,4 +177,28 @@ pub(crate) fn run(out: &Path, quick: bool) -> Result<(), String> {
         .map_err(|e| format!("{}: {e}", out.display()))?;
     eprintln!("[{wall:6.0}s] model written to {}", model.display());
     Ok(())
+}
+
+/// Writes the model in `model` to `assets/model-small` with f16 weights (replacing the folder
+/// whole), after checking that it loads.
+pub(crate) fn ship(model: &Path) -> Result<(), String> {
+    let device = wonder3d::diffusion::default_device();
+    let pipeline = MultiViewPipeline::from_dir(model, &device).map_err(err)?;
+    let out = crate::workspace_root().join("assets").join("model-small");
+    pipeline.save_with(&out, wonder3d::diffusion::Precision::F16).map_err(err)?;
+    let bytes: u64 = walk_sizes(&out);
+    eprintln!("wrote {} ({:.1} MB, f16)", out.display(), bytes as f64 / 1e6);
+    Ok(())
+}
+
+fn walk_sizes(dir: &Path) -> u64 {
+    std::fs::read_dir(dir)
+        .into_iter()
+        .flatten()
+        .flatten()
+        .map(|e| {
+            let path = e.path();
+            if path.is_dir() { walk_sizes(&path) } else { e.metadata().map_or(0, |m| m.len()) }
+        })
+        .sum()
 }

@@ -126,6 +126,11 @@ pub struct TrainOptions {
     pub condition_drop_rate: f64,
     /// Seed of the timestep, noise and dropout draws.
     pub seed: u64,
+    /// Exponential moving average of the trainable weights (off by default): the maximum
+    /// decay, reached through diffusers' `EMAModel` warm-up `min(decay, (1 + s) / (10 + s))`
+    /// at the (s + 1)-th optimizer step (the first step copies the weights). See
+    /// [`Trainer::ema_unet`].
+    pub ema_decay: Option<f64>,
 }
 
 impl TrainOptions {
@@ -144,7 +149,15 @@ impl TrainOptions {
             min_snr_gamma: Some(5.0),
             condition_drop_rate: 0.05,
             seed: 0,
+            ema_decay: None,
         }
+    }
+
+    /// Keeps an exponential moving average of the trainable weights with maximum decay
+    /// `decay` (`None`: off; diffusers' training scripts use 0.9999 with `--use_ema`).
+    pub fn with_ema_decay(mut self, decay: Option<f64>) -> Self {
+        self.ema_decay = decay;
+        self
     }
 
     /// Sets the learning rate.
@@ -209,6 +222,9 @@ impl TrainOptions {
         }
         if self.gradient_accumulation == 0 {
             return Err(Error::invalid("gradient_accumulation", "at least 1 micro-batch"));
+        }
+        if let Some(d) = self.ema_decay.filter(|d| !(0.0..1.0).contains(d)) {
+            return Err(Error::invalid("ema_decay", format!("a decay in [0, 1) (found {d})")));
         }
         if !(0.0..=1.0 / 3.0).contains(&self.condition_drop_rate) {
             return Err(Error::invalid(
@@ -447,6 +463,8 @@ pub struct Trainer {
     trainable: HashMap<ParamId, (String, bool)>,
     moments: HashMap<ParamId, Moments>,
     accumulated: HashMap<ParamId, Tensor<1>>,
+    /// The moving average of each trainable parameter, flattened (with `ema_decay`).
+    ema: HashMap<ParamId, Tensor<1>>,
     micro_batches: usize,
     step: usize,
     rng: u64,
@@ -482,6 +500,7 @@ impl Trainer {
             trainable,
             moments: HashMap::new(),
             accumulated: HashMap::new(),
+            ema: HashMap::new(),
             micro_batches: 0,
             step: 0,
             rng,
@@ -501,6 +520,42 @@ impl Trainer {
     /// The trained model for inference (autodiff off).
     pub fn inference_unet(&self) -> UNet {
         self.unet.valid()
+    }
+
+    /// The model for inference with the moving average of the trainable weights in place of
+    /// their current values (`None` without [`TrainOptions::ema_decay`]; before the first
+    /// optimizer step, the current weights). What diffusers' scripts save at the end of an
+    /// EMA run.
+    pub fn ema_unet(&self) -> Option<UNet> {
+        self.options.ema_decay?;
+        let unet = self.unet.valid();
+        Some(unet.map(&mut SetValues { values: &self.ema }))
+    }
+
+    /// The decay applied at the `k`-th optimizer step (1-based): 0 at the first (a copy), then
+    /// `min(decay, (1 + s) / (10 + s))` with `s = k − 1`, as diffusers' `EMAModel`.
+    fn ema_decay_at(&self, k: usize) -> f64 {
+        let s = k.saturating_sub(1);
+        match self.options.ema_decay {
+            Some(decay) if s > 0 => decay.min((1.0 + s as f64) / (10.0 + s as f64)),
+            _ => 0.0,
+        }
+    }
+
+    fn update_ema(&mut self) {
+        if self.options.ema_decay.is_none() {
+            return;
+        }
+        let decay = self.ema_decay_at(self.step);
+        let mut current = CollectValues { trainable: &self.trainable, out: Vec::new() };
+        self.unet.visit(&mut current);
+        for (id, value) in current.out {
+            let averaged = match self.ema.remove(&id) {
+                Some(ema) if decay > 0.0 => ema * decay + value * (1.0 - decay),
+                _ => value,
+            };
+            self.ema.insert(id, averaged);
+        }
     }
 
     /// The objective.
@@ -654,6 +709,7 @@ impl Trainer {
         };
         let unet = self.unet.clone().map(&mut update);
         self.unet = unet;
+        self.update_ema();
         Ok((norm as f32, lr))
     }
 }
@@ -731,6 +787,37 @@ impl ModuleVisitor for CollectGrads<'_> {
     }
 }
 
+/// The current values of the trainable parameters, flattened, on the inner device.
+struct CollectValues<'a> {
+    trainable: &'a HashMap<ParamId, (String, bool)>,
+    out: Vec<(ParamId, Tensor<1>)>,
+}
+
+impl ModuleVisitor for CollectValues<'_> {
+    fn visit_float<const D: usize>(&mut self, param: &Param<Tensor<D>>) {
+        if self.trainable.contains_key(&param.id) {
+            let value = param.val().inner();
+            let n = value.shape().num_elements();
+            self.out.push((param.id, value.reshape([n])));
+        }
+    }
+}
+
+/// Replaces the parameters found in `values` (flattened) by those values.
+struct SetValues<'a> {
+    values: &'a HashMap<ParamId, Tensor<1>>,
+}
+
+impl ModuleMapper for SetValues<'_> {
+    fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+        let Some(value) = self.values.get(&param.id) else { return param };
+        param.map(|tensor| {
+            let dims = tensor.dims();
+            value.clone().reshape(dims)
+        })
+    }
+}
+
 /// PyTorch's AdamW (decoupled weight decay, bias-corrected moments) on clipped gradients.
 struct AdamW<'a> {
     grads: HashMap<ParamId, Tensor<1>>,
@@ -793,7 +880,8 @@ struct SavedState {
 
 impl Trainer {
     /// Writes the optimizer moments ([`OPTIMIZER_FILE`]: `exp_avg.<key>` and
-    /// `exp_avg_sq.<key>`, flattened in the model's own layout) and the step, RNG and stage
+    /// `exp_avg_sq.<key>`, flattened in the model's own layout, and `ema.<key>` with
+    /// [`TrainOptions::ema_decay`]) and the step, RNG and stage
     /// ([`STATE_FILE`]) into the existing folder `dir`. Only between optimizer steps (not in
     /// the middle of gradient accumulation).
     pub fn write_state(&self, dir: &std::path::Path) -> Result<(), Error> {
@@ -808,7 +896,8 @@ impl Trainer {
         keys.sort();
         for (key, id) in keys {
             let Some(m) = self.moments.get(id) else { continue };
-            for (prefix, t) in [("exp_avg", &m.first), ("exp_avg_sq", &m.second)] {
+            let ema = self.ema.get(id).map(|t| ("ema", t));
+            for (prefix, t) in [("exp_avg", &m.first), ("exp_avg_sq", &m.second)].into_iter().chain(ema) {
                 let values = t.clone().into_data().convert::<f32>().try_to_vec::<f32>().unwrap_or_default();
                 tensors.push(NamedValues { key: format!("{prefix}.{key}"), shape: vec![values.len()], values });
             }
@@ -860,6 +949,7 @@ impl Trainer {
         let mut file = crate::weights::SafetensorsFile::open(&opt_path)?;
         let device = self.device().inner();
         let mut moments = HashMap::new();
+        let mut ema = HashMap::new();
         if state.step > 0 {
             for (id, (key, _)) in &self.trainable {
                 let n = numel.get(id).copied().unwrap_or(0);
@@ -872,9 +962,13 @@ impl Trainer {
                     Ok(Tensor::from_data(TensorData::new(values, [n]), &device))
                 };
                 moments.insert(*id, Moments { first: read("exp_avg")?, second: read("exp_avg_sq")? });
+                if self.options.ema_decay.is_some() {
+                    ema.insert(*id, read("ema")?);
+                }
             }
         }
         self.moments = moments;
+        self.ema = ema;
         self.accumulated.clear();
         self.micro_batches = 0;
         self.step = state.step;
@@ -954,6 +1048,10 @@ pub enum RunEvent {
 /// The checkpoint folder of a run's output folder: a model directory
 /// ([`crate::MultiViewPipeline::from_dir`]) plus [`STATE_FILE`] and [`OPTIMIZER_FILE`].
 pub const CHECKPOINT_DIR: &str = "checkpoint";
+/// With [`TrainOptions::ema_decay`], the checkpoint also holds the moving-average UNet in this
+/// sub-folder (diffusers' `unet_ema` layout: `config.json` + safetensors); the checkpoint's
+/// `unet/` keeps the current weights, which a resumed run continues from.
+pub const EMA_DIR: &str = "unet_ema";
 /// The run's log: one JSON object per optimizer step (`step`, `loss`, `grad_norm`, `lr`,
 /// `seconds`).
 pub const LOG_FILE: &str = "train_log.jsonl";
@@ -963,7 +1061,8 @@ pub const LOG_FILE: &str = "train_log.jsonl";
 /// optimizer state together) and one log line per optimizer step to `out/train_log.jsonl`.
 /// With `resume`, `out/checkpoint/` must exist: its model replaces `pipeline`'s UNet and its
 /// state the optimizer's, and the log keeps the lines up to its step; without, `out` must not
-/// hold a run already. Returns the trained pipeline.
+/// hold a run already. Returns the trained pipeline (with the moving-average weights when
+/// `options` keeps an EMA).
 pub fn run_training(
     pipeline: crate::MultiViewPipeline,
     set: &crate::training_set::TrainingSet,
@@ -1042,6 +1141,9 @@ pub fn run_training(
             crate::MultiViewPipeline::new(trainer.inference_unet(), vae.clone(), clip.clone(), scheduler.clone())?;
         w3d_core::io::write_dir_atomic(&checkpoint, |staging| {
             pipeline.write_into(staging, Precision::F32)?;
+            if let Some(ema) = trainer.ema_unet() {
+                ema.save(staging.join(EMA_DIR))?;
+            }
             trainer.write_state(staging)
         })
     };
@@ -1077,7 +1179,8 @@ pub fn run_training(
             on_event(RunEvent::Checkpoint { step: at });
         }
     }
-    crate::MultiViewPipeline::new(trainer.inference_unet(), vae, clip, scheduler)
+    let unet = trainer.ema_unet().unwrap_or_else(|| trainer.inference_unet());
+    crate::MultiViewPipeline::new(unet, vae, clip, scheduler)
 }
 
 /// Options of [`train_vae`].

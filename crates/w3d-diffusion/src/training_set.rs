@@ -148,11 +148,11 @@ impl TrainingSet {
         let text = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
         let index: Index = serde_json::from_slice(&text)
             .map_err(|e| Error::format(&path, "dataset.json", format!("the training-set index ({e})")))?;
-        if index.format != FORMAT || index.version != 1 {
+        if index.format != FORMAT || index.version != 2 {
             return Err(Error::format(
                 &path,
                 "format",
-                format!("{FORMAT:?} version 1 (found {:?} version {})", index.format, index.version),
+                format!("{FORMAT:?} version 2 (found {:?} version {})", index.format, index.version),
             ));
         }
         if index.views != VIEW_NAMES {

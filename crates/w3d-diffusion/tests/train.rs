@@ -84,6 +84,48 @@ fn a_fresh_tiny_model_fits_one_fixed_batch() {
 }
 
 #[test]
+fn the_moving_average_follows_diffusers_ema_and_survives_a_resume() {
+    let device = w3d_diffusion::default_device();
+    let unet = UNet::random(&tiny_config(), 13, &device).unwrap();
+    let options = TrainOptions::for_stage(Stage::CrossDomain).with_warmup_steps(0).with_ema_decay(Some(0.5));
+    let mut trainer = Trainer::new(unet, scheduler(), options.clone()).unwrap();
+    let batch = batch(&trainer.device(), 9);
+    let key = "mid_block.attentions.0.transformer_blocks.0.attn_joint_mid.to_q.weight";
+    // Decays of steps 1, 2, 3: 0 (copy), min(0.5, 2/11), min(0.5, 3/12).
+    let mut expected: Vec<f32> = Vec::new();
+    for decay in [0.0f32, 2.0 / 11.0, 0.25] {
+        trainer.step(&batch).unwrap();
+        let current = &params_by_key(&trainer.inference_unet())[key];
+        expected = if expected.is_empty() {
+            current.clone()
+        } else {
+            expected.iter().zip(current).map(|(e, c)| e * decay + c * (1.0 - decay)).collect()
+        };
+    }
+    let ema = params_by_key(&trainer.ema_unet().unwrap());
+    let err = ema[key].iter().zip(&expected).map(|(a, b)| (a - b).abs()).fold(0.0f32, f32::max);
+    assert!(err < 1e-6, "EMA differs from the formula by {err}");
+    assert_ne!(ema[key], params_by_key(&trainer.inference_unet())[key], "the EMA is not the current weights");
+    // Frozen parameters are the same in both.
+    let conv = "conv_in.weight";
+    assert_eq!(ema[conv], params_by_key(&trainer.inference_unet())[conv]);
+    // The state round-trips: a trainer restored from it continues with the same average.
+    let dir = tempfile::tempdir().unwrap();
+    trainer.write_state(dir.path()).unwrap();
+    let mut restored = Trainer::new(trainer.inference_unet(), scheduler(), options).unwrap();
+    restored.load_state(dir.path()).unwrap();
+    trainer.step(&batch).unwrap();
+    restored.step(&batch).unwrap();
+    assert_eq!(params_by_key(&trainer.ema_unet().unwrap())[key], params_by_key(&restored.ema_unet().unwrap())[key]);
+    // Without EMA there is none, and a decay of 1 is refused by name.
+    let plain = Trainer::new(trainer.inference_unet(), scheduler(), TrainOptions::for_stage(Stage::CrossDomain));
+    assert!(plain.unwrap().ema_unet().is_none());
+    let bad = TrainOptions::for_stage(Stage::CrossDomain).with_ema_decay(Some(1.0));
+    let err = Trainer::new(trainer.inference_unet(), scheduler(), bad).unwrap_err().to_string();
+    assert!(err.contains("ema_decay"), "{err}");
+}
+
+#[test]
 fn stage_three_changes_only_the_joint_attention() {
     let device = w3d_diffusion::default_device();
     let unet = UNet::random(&tiny_config(), 11, &device).unwrap();

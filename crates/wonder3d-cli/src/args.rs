@@ -154,6 +154,12 @@ pub fn learning_rate(s: &str) -> Result<f64, String> {
     if lr == 0.0 { Err("a learning rate above 0".into()) } else { Ok(lr) }
 }
 
+/// EMA decay: finite, in [0, 1).
+pub fn ema_decay(s: &str) -> Result<f64, String> {
+    let d = finite_in(s, 0.0, 1.0, "an EMA decay")?;
+    if d >= 1.0 { Err("an EMA decay below 1".into()) } else { Ok(d) }
+}
+
 /// DDIM steps: 1 to 1000 (the scheduler's training steps).
 pub fn steps(s: &str) -> Result<usize, String> {
     whole_in(s, 1, 1000, " steps")

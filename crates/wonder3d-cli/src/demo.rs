@@ -1,5 +1,7 @@
 //! `wonder3d demo [--out DIR]`: the whole mesh-extraction pipeline on the bundled spot (CC0),
-//! with no downloads (`wonder3d::demo`).
+//! with no downloads (`wonder3d::demo`). `--from-image` starts from spot's front render as a
+//! photo and generates the views with the small model in the repository's
+//! `assets/model-small` (or `--weights DIR`).
 
 use std::path::PathBuf;
 
@@ -24,9 +26,36 @@ pub struct DemoArgs {
     /// Side of the baked texture in texels.
     #[arg(long, default_value_t = DemoOptions::default().texture_size, allow_hyphen_values = true, value_parser = crate::args::texture_size)]
     texture_size: u32,
+    /// Start from spot's front render as a photo: background removal, the model's 6 views,
+    /// then the same extraction and report (needs a binary with the diffusion model).
+    #[arg(long)]
+    from_image: bool,
+    /// With --from-image: the model directory (default: the small model trained here,
+    /// `assets/model-small` of the repository; docs/training.md).
+    #[arg(long, requires = "from_image")]
+    weights: Option<PathBuf>,
+    #[command(flatten)]
+    sampling: crate::generate::SamplingArgs,
     /// No progress bars.
     #[arg(long)]
     quiet: bool,
+}
+
+/// Where the small model is looked for: `assets/model-small` under the current directory
+/// (a clone's root), then in the workspace this binary was built from.
+#[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
+fn small_model_dir() -> Result<PathBuf> {
+    let candidates = [
+        PathBuf::from("assets/model-small"),
+        PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets/model-small")),
+    ];
+    candidates.iter().find(|dir| dir.join("model_index.json").is_file()).cloned().ok_or_else(|| {
+        wonder3d::Error::invalid(
+            "--weights",
+            "a model directory: the small model is in assets/model-small of a clone of the repository \
+             (not found from here); pass --weights DIR (docs/training.md)",
+        )
+    })
 }
 
 /// Runs `wonder3d demo`.
@@ -37,11 +66,22 @@ pub fn run(args: &DemoArgs) -> Result<()> {
         .with_preset(args.preset.into())
         .with_view_size(args.size)
         .with_texture_size(args.texture_size);
-    let bar = progress::bar(args.quiet)?;
-    let demo = run_demo(&options, &mut progress::follow(&bar))?;
-    bar.finish_and_clear();
+    let demo = if args.from_image {
+        from_image(args, &options)?
+    } else {
+        let bar = progress::bar(args.quiet)?;
+        let demo = run_demo(&options, &mut progress::follow(&bar))?;
+        bar.finish_and_clear();
+        demo
+    };
     demo.save(&args.out)?;
     let r = &demo.report;
+    if let Some(g) = &r.generated_views {
+        println!(
+            "generated views against spot's: normal error {:.1}° inside the true mask, mask IoU {:.3}",
+            g.normal_angle_deg, g.mask_iou
+        );
+    }
     println!(
         "spot: {} triangles, Chamfer {:.4}, F@0.02 {:.3}, IoU {:.3}, texture PSNR {:.1} dB, {:.1} s in all",
         r.pipeline.triangles,
@@ -54,4 +94,25 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     let out = args.out.display();
     println!("wrote {out}/spot.glb, {out}/views.png and {out}/report.json");
     Ok(())
+}
+
+/// The demo from spot's front render as a photo, with the model of `--weights`.
+#[cfg(feature = "diffusion")]
+fn from_image(args: &DemoArgs, options: &DemoOptions) -> Result<wonder3d::demo::Demo> {
+    let weights = match &args.weights {
+        Some(dir) => dir.clone(),
+        None => small_model_dir()?,
+    };
+    let bar = progress::bar(args.quiet)?;
+    bar.set_prefix("load");
+    let generator = crate::generate::load(&weights, &args.sampling)?;
+    let demo = wonder3d::demo::run_demo_from_image(generator, options, &mut progress::follow(&bar))?;
+    bar.finish_and_clear();
+    Ok(demo)
+}
+
+/// `--from-image` in a binary without the model.
+#[cfg(not(feature = "diffusion"))]
+fn from_image(_: &DemoArgs, _: &DemoOptions) -> Result<wonder3d::demo::Demo> {
+    Err(crate::generate::without_model())
 }

@@ -48,6 +48,12 @@ pub struct TrainArgs {
     /// Seed of the sample, domain, timestep, noise and dropout draws.
     #[arg(long, default_value_t = 0, allow_hyphen_values = true, value_parser = crate::args::seed)]
     pub seed: u64,
+    /// Keep an exponential moving average of the trained weights with this maximum decay
+    /// (e.g. 0.999; diffusers' warm-up `min(decay, (1 + s) / (10 + s))`): checkpoints hold it
+    /// in `unet_ema/`, and the end of the run writes the whole model with it to
+    /// `OUT/model-ema` (the model to generate with).
+    #[arg(long, value_parser = crate::args::ema_decay)]
+    pub ema_decay: Option<f64>,
     /// Continue the run in `--out` from its checkpoint (bit-identical to an uninterrupted run).
     #[arg(long)]
     pub resume: bool,
@@ -91,7 +97,8 @@ pub fn run(args: &TrainArgs) -> Result<()> {
     let mut options = TrainOptions::for_stage(stage)
         .with_warmup_steps(args.warmup as usize)
         .with_gradient_accumulation(args.accumulate as usize)
-        .with_seed(args.seed);
+        .with_seed(args.seed)
+        .with_ema_decay(args.ema_decay);
     if let Some(lr) = args.lr {
         options = options.with_learning_rate(lr);
     }
@@ -107,7 +114,7 @@ pub fn run(args: &TrainArgs) -> Result<()> {
     );
     bar.set_prefix("encode");
     let mut last_checkpoint = None;
-    run_training(pipeline, &set, options, &run, &args.out, args.resume, &mut |event| match event {
+    let trained = run_training(pipeline, &set, options, &run, &args.out, args.resume, &mut |event| match event {
         RunEvent::Encoded { done, total } => {
             bar.set_length(total as u64);
             bar.set_position(done as u64);
@@ -135,6 +142,12 @@ pub fn run(args: &TrainArgs) -> Result<()> {
         checkpoint.display(),
         args.out.join(wonder3d::diffusion::train::LOG_FILE).display()
     );
+    if args.ema_decay.is_some() {
+        // The moving-average weights as a model directory of their own, for generate / run.
+        let ema_model = args.out.join("model-ema");
+        trained.save(&ema_model)?;
+        println!("moving-average model -> {}", ema_model.display());
+    }
     Ok(())
 }
 

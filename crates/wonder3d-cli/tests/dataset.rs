@@ -40,7 +40,7 @@ fn dataset_writes_samples_that_load_and_reconstruct() {
     assert!(run.status.success(), "{}", stderr(&run));
     assert!(String::from_utf8_lossy(&run.stdout).contains("wrote 4 samples of 2 meshes"));
     let json: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("dataset.json")).unwrap()).unwrap();
-    assert_eq!((json["format"].as_str(), json["version"].as_u64()), (Some("wonder3d-rs dataset"), Some(1)));
+    assert_eq!((json["format"].as_str(), json["version"].as_u64()), (Some("wonder3d-rs dataset"), Some(2)));
     assert_eq!((json["size"].as_u64(), json["seed"].as_u64()), (Some(64), Some(3)));
     let samples = json["samples"].as_array().unwrap();
     let ids: Vec<&str> = samples.iter().map(|s| s["id"].as_str().unwrap()).collect();

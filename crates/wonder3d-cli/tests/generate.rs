@@ -152,3 +152,43 @@ fn generate_accepts_an_rgb_photo() {
     assert!(err.contains("mask from segmented"), "{err}");
     assert!(views.join("input.png").is_file());
 }
+
+#[test]
+fn demo_from_image_goes_from_a_photo_to_a_scored_mesh() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo");
+    let run = wonder3d(&[
+        "demo",
+        "--from-image",
+        "--weights",
+        &tiny_weights(),
+        "--steps",
+        "2",
+        "--out",
+        out.to_str().unwrap(),
+        "--preset",
+        "fast",
+        "--size",
+        "128",
+        "--texture-size",
+        "256",
+        "--quiet",
+    ]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    // The tiny checkpoint's views are noise: the report is checked for its content, not scores.
+    let agreement = &report["generated_views"];
+    let angle = agreement["normal_angle_deg"].as_f64().unwrap();
+    assert!((0.0..=180.0).contains(&angle) && agreement["pixels"].as_u64().unwrap() > 100, "{report}");
+    assert_eq!(report["pipeline"]["generation"]["steps"].as_u64(), Some(2), "{report}");
+    assert!(out.join("spot.glb").is_file() && out.join("views.png").is_file());
+    // A missing model directory is named, and --weights needs --from-image.
+    let missing = dir.path().join("no-model");
+    let run =
+        wonder3d(&["demo", "--from-image", "--weights", missing.to_str().unwrap(), "--out", out.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success() && err.contains("no-model"), "{err}");
+    let run = wonder3d(&["demo", "--weights", &tiny_weights(), "--out", out.to_str().unwrap()]);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success() && err.contains("--from-image"), "{err}");
+}

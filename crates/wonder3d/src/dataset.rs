@@ -19,7 +19,9 @@
 //! - the object is rotated by a yaw about +y uniform in ±60° after a pitch about +x uniform
 //!   in −15…30° (Wonder3D's render-time rotation, z ±60° and x −15…30° in Blender's z-up,
 //!   `reference/wonder3d.md` §4.1), then normalised as `wonder3d render` does (bbox centred,
-//!   longest side 1);
+//!   longest side 1), then scaled so its front-view silhouette spans [`INPUT_FRACTION`] of
+//!   the image — the framing inference gives a photo — within [`MAX_VIEW_FRACTION`] in every
+//!   view ([`framing_scale`]);
 //! - the camera type is orthographic or perspective with p = 0.5 (or fixed by
 //!   [`DatasetOptions::with_camera`]); the rig is `w3d-core`'s 6-view rig of that type;
 //! - the background is white, black or grey (1, 0, 0.5) with p = 1/3 each. It is **not**
@@ -59,7 +61,7 @@ use crate::{Error, Mesh, Result, ViewRig, ViewSet};
 pub const FORMAT: &str = "wonder3d-rs dataset";
 
 /// The `version` of the layout written here.
-pub const VERSION: u32 = 1;
+pub const VERSION: u32 = 2;
 
 /// The manifest's file name inside the dataset folder.
 pub const MANIFEST_FILE: &str = "dataset.json";
@@ -453,9 +455,10 @@ impl DatasetObject {
         Ok(DatasetObject { source: path.to_path_buf(), stem, colouring, flipped_outward, mesh })
     }
 
-    /// This object's mesh as sample `draw` sees it: rotated by the draw's pitch about +x,
-    /// then its yaw about +y, then normalised into the unit cube again (bbox centred,
-    /// longest side 1), as `wonder3d render` normalises.
+    /// This object's mesh as sample `draw` renders it: rotated by the draw's pitch about +x,
+    /// then its yaw about +y, normalised into the unit cube again (bbox centred, longest
+    /// side 1), then scaled about the origin by [`framing_scale`] so that the front view
+    /// frames it as [`INPUT_FRACTION`] says.
     pub fn posed(&self, draw: &Draw) -> Result<Mesh> {
         let (yaw, pitch) = (draw.yaw_deg.to_radians(), draw.pitch_deg.to_radians());
         let (sy, cy, sp, cp) = (yaw.sin(), yaw.cos(), pitch.sin(), pitch.cos());
@@ -469,8 +472,49 @@ impl DatasetObject {
         })
         .map_err(|e| e.in_file(&self.source))?;
         mesh.normalize_unit_cube();
+        let scale = framing_scale(&mesh);
+        mesh.map_positions(|p| p * scale).map_err(|e| e.in_file(&self.source))?;
         Ok(mesh)
     }
+}
+
+/// Fraction of the image side that the longest side of the object's front-view silhouette
+/// spans in a sample (at the origin's depth): the framing that inference gives a photo
+/// (`w3d_diffusion::OBJECT_FRACTION`, Wonder3D's 192 of 256 px), so a model trained on these
+/// samples sees its condition image at the scale of its targets.
+pub const INPUT_FRACTION: f32 = 0.75;
+
+/// Largest fraction of the image side the object may span in any of the six views (its
+/// diameter about the vertical axis and its height), which bounds [`framing_scale`] for
+/// objects deep along the front view's axis.
+pub const MAX_VIEW_FRACTION: f32 = 0.9;
+
+/// The factor that scales `mesh` (centred at the origin, e.g. normalised into the unit cube)
+/// so that its front-view silhouette (the x–y extent of its bounding box, +z toward the
+/// front camera) spans [`INPUT_FRACTION`] of the Wonder3D image (`2 ×`
+/// [`w3d_core::rig::WONDER3D_HALF_EXTENT`] world units at the origin) — unless then its
+/// diameter about the y axis or its height would exceed [`MAX_VIEW_FRACTION`] of it in some
+/// view, in which case the largest factor within that bound. 1 for an empty mesh.
+pub fn framing_scale(mesh: &Mesh) -> f32 {
+    let positions = mesh.positions();
+    if positions.is_empty() {
+        return 1.0;
+    }
+    let (mut lo, mut hi, mut radius) = ([f32::MAX; 3], [f32::MIN; 3], 0.0f32);
+    for p in positions {
+        for k in 0..3 {
+            lo[k] = lo[k].min(p[k]);
+            hi[k] = hi[k].max(p[k]);
+        }
+        radius = radius.max((p[0] * p[0] + p[2] * p[2]).sqrt());
+    }
+    let image = 2.0 * w3d_core::rig::WONDER3D_HALF_EXTENT;
+    let front = (hi[0] - lo[0]).max(hi[1] - lo[1]);
+    let widest = (2.0 * radius).max(hi[1] - lo[1]);
+    if front <= 0.0 || widest <= 0.0 {
+        return 1.0;
+    }
+    (INPUT_FRACTION * image / front).min(MAX_VIEW_FRACTION * image / widest)
 }
 
 /// A planned training set: the prepared objects and every sample's draws, checked and ready

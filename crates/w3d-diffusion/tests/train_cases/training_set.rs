@@ -64,7 +64,7 @@ fn write_set(dir: &Path, samples: &[(&str, CameraType, &str)]) {
         }));
     }
     let index = serde_json::json!({
-        "format": "wonder3d-rs dataset", "version": 1, "size": SIZE, "seed": 0,
+        "format": "wonder3d-rs dataset", "version": 2, "size": SIZE, "seed": 0,
         "views": ["front", "front_right", "right", "back", "left", "front_left"],
         "samples": entries,
     });
@@ -152,7 +152,7 @@ fn malformed_sets_are_refused_naming_the_field() {
         ("\"white\"", "\"plaid\"", "samples[0].background"),
         ("\"id\": \"a\"", "\"id\": \"../a\"", "samples[0].id"),
         ("\"id\": \"a\"", "\"id\": \"missing\"", "samples[0].id"),
-        ("\"version\": 1", "\"version\": 7", "format"),
+        ("\"version\": 2", "\"version\": 7", "format"),
         ("\"front_left\"", "\"top\"", "views"),
     ] {
         std::fs::write(&index, original.replace(from, to)).unwrap();
