@@ -40,7 +40,7 @@
 //!   vertex and index counts of the file's accessors (and the given counts), uvs on every
 //!   mesh, and a base-colour texture wherever the file has one. Node has no image decoder,
 //!   so texture images are checked for being present, not decoded.
-//! - `cargo xtask train-small [--out DIR] [--quick]`, `cargo xtask eval-small [--model DIR]`,
+//! - `cargo xtask train-small [--out DIR] [--quick] [--resume]`, `cargo xtask eval-small [--model DIR]`,
 //!   `cargo xtask ship-small [--model DIR]`: the small model's recipe, its scores
 //!   (`docs/img/small_model.png`) and its f16 copy in `assets/model-small`
 //!   (`docs/training.md`).
@@ -83,6 +83,11 @@ enum Task {
         /// A few steps of each phase only (checks the recipe and times its steps).
         #[arg(long)]
         quick: bool,
+        /// Continue the run in `--out`: reuse its training set and VAE, load finished
+        /// stages, resume the first unfinished one from its checkpoint (the result is the
+        /// uninterrupted run's).
+        #[arg(long)]
+        resume: bool,
     },
     /// Put a trained model into assets/model-small with f16 weights (the model the
     /// repository ships; provenance in assets/model-small.md).
@@ -571,7 +576,7 @@ fn main() -> ExitCode {
         Task::ValidateGlb { files } => validate_glb(&files),
         Task::LoadGlb { files, vertices, triangles } => load_glb(&files, vertices, triangles),
         Task::Fixtures { which } => fixtures(&which),
-        Task::TrainSmall { out, quick } => train_small::run(&out, quick),
+        Task::TrainSmall { out, quick, resume } => train_small::run(&out, quick, resume),
         Task::EvalSmall { model, out, steps } => eval_small::run(&model, &out, steps),
         Task::ShipSmall { model } => train_small::ship(&model),
         Task::Bench { suite, criterion_args } => bench(&suite, &criterion_args),

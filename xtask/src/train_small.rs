@@ -7,7 +7,9 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use wonder3d::dataset::{Dataset, DatasetOptions};
-use wonder3d::diffusion::train::{RunEvent, RunOptions, Stage, TrainOptions, VaeTrainOptions, run_training, train_vae};
+use wonder3d::diffusion::train::{
+    CHECKPOINT_DIR, RunEvent, RunOptions, STATE_FILE, Stage, TrainOptions, VaeTrainOptions, run_training, train_vae,
+};
 use wonder3d::diffusion::training_set::TrainingSet;
 use wonder3d::diffusion::{
     ClipVision, ClipVisionConfig, MultiViewPipeline, SchedulerConfig, UNet, UNetConfig, Vae, VaeConfig,
@@ -65,22 +67,130 @@ fn err(e: impl std::fmt::Display) -> String {
     e.to_string()
 }
 
-pub(crate) fn run(out: &Path, quick: bool) -> Result<(), String> {
+/// The optimizer step a stage folder's checkpoint reached (`None` without one).
+fn checkpoint_step(stage_dir: &Path) -> Option<usize> {
+    let path = stage_dir.join(CHECKPOINT_DIR).join(STATE_FILE);
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(path).ok()?).ok()?;
+    json["step"].as_u64().map(|s| s as usize)
+}
+
+/// Runs the recipe into `out`. With `resume`, an earlier run there continues: the training
+/// set and the VAE are reused, a stage whose checkpoint reached its step count is loaded, one
+/// that stopped short resumes from its checkpoint (exactly, see `run_training`), and once a
+/// stage has trained, the stages after it start afresh. The result is the uninterrupted
+/// run's.
+pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
     let schedule = if quick { Schedule::quick() } else { Schedule::full() };
     let root = crate::workspace_root();
     let started = Instant::now();
     let device = wonder3d::diffusion::default_device();
     std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
+    let stage1 = out.join("stage1").join(CHECKPOINT_DIR);
+    let resume = resume && stage1.join("model_index.json").is_file();
 
     // 1. The training set.
     let data = out.join("data");
-    let meshes: Vec<PathBuf> = TRAIN_MESHES.iter().map(|m| root.join(m)).collect();
-    let options = DatasetOptions::default().with_samples(schedule.samples).with_size(schedule.size).with_seed(0);
-    let dataset = Dataset::prepare(&meshes, &options).map_err(err)?;
-    dataset.write(&data, &mut |_| {}).map_err(err)?;
+    if !resume {
+        let meshes: Vec<PathBuf> = TRAIN_MESHES.iter().map(|m| root.join(m)).collect();
+        let options = DatasetOptions::default().with_samples(schedule.samples).with_size(schedule.size).with_seed(0);
+        let dataset = Dataset::prepare(&meshes, &options).map_err(err)?;
+        dataset.write(&data, &mut |_| {}).map_err(err)?;
+    }
     let set = TrainingSet::open(&data).map_err(err)?;
     eprintln!("[{:6.0}s] training set: {} samples at {}²", started.elapsed().as_secs_f64(), set.len(), set.size());
 
+    let mut pipeline = if resume {
+        // The VAE and CLIP encoder of the earlier run (every checkpoint holds them).
+        eprintln!(
+            "[{:6.0}s] resuming: VAE and CLIP encoder from {}",
+            started.elapsed().as_secs_f64(),
+            stage1.display()
+        );
+        MultiViewPipeline::from_dir(&stage1, &device).map_err(err)?
+    } else {
+        fresh_model(&set, &schedule, &device, started)?
+    };
+
+    // 4. The three stages.
+    let mut retrain = !resume;
+    for (i, stage) in [Stage::MultiDomain, Stage::MixedDomain, Stage::CrossDomain].into_iter().enumerate() {
+        let steps = schedule.stage_steps[i];
+        let stage_dir = out.join(format!("stage{}", stage.number()));
+        let reached = if retrain { None } else { checkpoint_step(&stage_dir) };
+        if reached.is_some_and(|s| s >= steps) {
+            eprintln!(
+                "[{:6.0}s] stage {}: checkpoint at its {steps} steps, loaded",
+                started.elapsed().as_secs_f64(),
+                stage.number()
+            );
+            pipeline = MultiViewPipeline::from_dir(stage_dir.join(CHECKPOINT_DIR), &device).map_err(err)?;
+            continue;
+        }
+        // This stage trains: every later one starts afresh.
+        retrain = true;
+        let resume_stage = reached.is_some();
+        if stage == Stage::CrossDomain && !resume_stage {
+            let (unet, vae, clip, scheduler) = pipeline.into_parts();
+            let unet = unet.with_cross_domain_attention(4).map_err(err)?;
+            pipeline = MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)?;
+        }
+        let options = TrainOptions::for_stage(stage)
+            .with_learning_rate(schedule.stage_lr[i])
+            .with_warmup_steps((steps / 20).max(1))
+            .with_seed(10 + i as u64);
+        let run = RunOptions::default()
+            .with_steps(steps)
+            .with_objects_per_batch(schedule.objects_per_batch)
+            .with_checkpoint_every(500);
+        if !resume_stage && stage_dir.exists() {
+            std::fs::remove_dir_all(&stage_dir).map_err(|e| format!("{}: {e}", stage_dir.display()))?;
+        }
+        let t = Instant::now();
+        let first = reached.unwrap_or(0);
+        pipeline = run_training(pipeline, &set, options, &run, &stage_dir, resume_stage, &mut |event| {
+            if let RunEvent::Step(log) = event
+                && (log.step % 50 == 0 || log.step == steps)
+            {
+                eprintln!(
+                    "  stage {} step {}/{steps}: loss {:.4} ({:.2} s/step)",
+                    stage.number(),
+                    log.step,
+                    log.loss,
+                    t.elapsed().as_secs_f64() / (log.step - first).max(1) as f64
+                );
+            }
+        })
+        .map_err(err)?;
+        eprintln!("[{:6.0}s] stage {} done", started.elapsed().as_secs_f64(), stage.number());
+    }
+    let model = out.join("model");
+    pipeline.save(&model).map_err(err)?;
+    let wall = started.elapsed().as_secs_f64();
+    let record = serde_json::json!({
+        "schedule": {
+            "samples_per_mesh": schedule.samples, "size": schedule.size, "vae_steps": schedule.vae_steps,
+            "stage_steps": schedule.stage_steps, "stage_lr": schedule.stage_lr,
+            "objects_per_batch": schedule.objects_per_batch,
+        },
+        "meshes": TRAIN_MESHES, "held_out": HELD_OUT_MESH,
+        "resumed": resume,
+        "wall_seconds": wall,
+        "threads": std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
+    });
+    std::fs::write(out.join("recipe.json"), serde_json::to_vec_pretty(&record).map_err(err)?)
+        .map_err(|e| format!("{}: {e}", out.display()))?;
+    eprintln!("[{wall:6.0}s] model written to {}", model.display());
+    Ok(())
+}
+
+/// A new model for `set`: the VAE trained on every model image of the set, a frozen random
+/// CLIP image encoder and a random UNet of the small configuration.
+fn fresh_model(
+    set: &TrainingSet,
+    schedule: &Schedule,
+    device: &wonder3d::diffusion::Device,
+    started: Instant,
+) -> Result<MultiViewPipeline, String> {
     // 2. The VAE, trained on every model image of the set.
     let vae_config = VaeConfig::from_file(config_dir().join("vae").join("config.json")).map_err(err)?;
     let mut images = Vec::new();
@@ -121,62 +231,7 @@ pub(crate) fn run(out: &Path, quick: bool) -> Result<(), String> {
     let unet = UNet::random(&unet_config, 3, &device).map_err(err)?;
     let scheduler =
         SchedulerConfig::from_file(config_dir().join("scheduler").join("scheduler_config.json")).map_err(err)?;
-    let mut pipeline = MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)?;
-
-    // 4. The three stages.
-    for (i, stage) in [Stage::MultiDomain, Stage::MixedDomain, Stage::CrossDomain].into_iter().enumerate() {
-        if stage == Stage::CrossDomain {
-            let (unet, vae, clip, scheduler) = pipeline.into_parts();
-            let unet = unet.with_cross_domain_attention(4).map_err(err)?;
-            pipeline = MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)?;
-        }
-        let steps = schedule.stage_steps[i];
-        let options = TrainOptions::for_stage(stage)
-            .with_learning_rate(schedule.stage_lr[i])
-            .with_warmup_steps((steps / 20).max(1))
-            .with_seed(10 + i as u64);
-        let run = RunOptions::default()
-            .with_steps(steps)
-            .with_objects_per_batch(schedule.objects_per_batch)
-            .with_checkpoint_every(500);
-        let stage_dir = out.join(format!("stage{}", stage.number()));
-        if stage_dir.exists() {
-            std::fs::remove_dir_all(&stage_dir).map_err(|e| format!("{}: {e}", stage_dir.display()))?;
-        }
-        let t = Instant::now();
-        pipeline = run_training(pipeline, &set, options, &run, &stage_dir, false, &mut |event| {
-            if let RunEvent::Step(log) = event
-                && (log.step % 50 == 0 || log.step == steps)
-            {
-                eprintln!(
-                    "  stage {} step {}/{steps}: loss {:.4} ({:.2} s/step)",
-                    stage.number(),
-                    log.step,
-                    log.loss,
-                    t.elapsed().as_secs_f64() / log.step as f64
-                );
-            }
-        })
-        .map_err(err)?;
-        eprintln!("[{:6.0}s] stage {} done", started.elapsed().as_secs_f64(), stage.number());
-    }
-    let model = out.join("model");
-    pipeline.save(&model).map_err(err)?;
-    let wall = started.elapsed().as_secs_f64();
-    let record = serde_json::json!({
-        "schedule": {
-            "samples_per_mesh": schedule.samples, "size": schedule.size, "vae_steps": schedule.vae_steps,
-            "stage_steps": schedule.stage_steps, "stage_lr": schedule.stage_lr,
-            "objects_per_batch": schedule.objects_per_batch,
-        },
-        "meshes": TRAIN_MESHES, "held_out": HELD_OUT_MESH,
-        "wall_seconds": wall,
-        "threads": std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
-    });
-    std::fs::write(out.join("recipe.json"), serde_json::to_vec_pretty(&record).map_err(err)?)
-        .map_err(|e| format!("{}: {e}", out.display()))?;
-    eprintln!("[{wall:6.0}s] model written to {}", model.display());
-    Ok(())
+    MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)
 }
 
 /// Writes the model in `model` to `assets/model-small` with f16 weights (replacing the folder
