@@ -23,10 +23,77 @@ fn err(e: impl std::fmt::Display) -> String {
     e.to_string()
 }
 
-pub(crate) fn run(model: &Path, out: &Path, steps: usize) -> Result<(), String> {
+/// Timesteps at which [`condition_use`] measures the denoiser.
+const PROBE_TIMESTEPS: [usize; 4] = [200, 600, 800, 950];
+
+/// How much the model's denoising uses its condition: over 7 training samples (one per
+/// object) in both domains, the mean squared error of the x₀ the model implies (from its ε or
+/// v prediction) against the true latents at each of [`PROBE_TIMESTEPS`], with the sample's own
+/// condition, with another object's, and with none (the unconditional branch). The latents have
+/// unit variance, so 1 is no better than their mean; a model that follows its input has a
+/// much lower error with its own condition than with none, most of all at the noisiest steps.
+fn condition_use(pipeline: &MultiViewPipeline, data: &Path) -> Result<Vec<serde_json::Value>, String> {
+    use wonder3d::diffusion::train::{ConditionDrop, DiffusionObjective, Stage, StepDraws};
+    use wonder3d::diffusion::training_set::{EncodedSample, TrainingSet, assemble_batch};
+    use wonder3d::diffusion::{DdimScheduler, Prediction, gaussian_noise};
+
+    let device = wonder3d::diffusion::default_device();
+    let set = TrainingSet::open(data).map_err(err)?;
+    let per_object = set.len() / TRAIN_MESHES.len();
+    let class_dim = pipeline.unet().config().projection_class_embeddings_input_dim.unwrap_or(14);
+    let encoded: Vec<EncodedSample> = (0..TRAIN_MESHES.len())
+        .map(|o| EncodedSample::encode(pipeline, &set.images(o * per_object).map_err(err)?, &device).map_err(err))
+        .collect::<Result<_, _>>()?;
+    let objective = DiffusionObjective::new(pipeline.scheduler().clone(), None).map_err(err)?;
+    let ddim = DdimScheduler::new(pipeline.scheduler().clone(), 1).map_err(err)?;
+    let to_x0 = |t: usize, mse: f64| {
+        let a = ddim.alphas_cumprod()[t];
+        match ddim.prediction() {
+            Prediction::Epsilon => mse * (1.0 - a) / a,
+            Prediction::VPrediction => mse * (1.0 - a),
+            Prediction::Sample => mse,
+        }
+    };
+    let mut rows = Vec::new();
+    for t in PROBE_TIMESTEPS {
+        let (mut own, mut other, mut none) = (0.0, 0.0, 0.0);
+        for (k, sample) in encoded.iter().enumerate() {
+            let batch = assemble_batch(Stage::CrossDomain, &[sample], &[], class_dim).map_err(err)?;
+            let draws = StepDraws {
+                timesteps: vec![t, t],
+                noise: gaussian_noise(batch.latents.dims(), 7 + k as u64, &device),
+                condition_drops: vec![ConditionDrop::Keep],
+            };
+            let mse = |batch: &wonder3d::diffusion::train::TrainBatch, draws: &StepDraws| -> Result<f64, String> {
+                let loss = objective.loss(pipeline.unet(), batch, draws).map_err(err)?;
+                Ok(f64::from(loss.into_scalar::<f32>()))
+            };
+            own += mse(&batch, &draws)?;
+            let swap = assemble_batch(Stage::CrossDomain, &[&encoded[(k + 1) % encoded.len()]], &[], class_dim)
+                .map_err(err)?;
+            let mut swapped = batch.clone();
+            swapped.condition_latents = swap.condition_latents;
+            swapped.image_embeddings = swap.image_embeddings;
+            other += mse(&swapped, &draws)?;
+            let dropped = StepDraws { condition_drops: vec![ConditionDrop::ClipAndImage], ..draws.clone() };
+            none += mse(&batch, &dropped)?;
+        }
+        let n = encoded.len() as f64;
+        let (own, other, none) = (to_x0(t, own / n), to_x0(t, other / n), to_x0(t, none / n));
+        eprintln!("  x0 error at t = {t}: own condition {own:.3}, another object's {other:.3}, none {none:.3}");
+        rows.push(serde_json::json!({ "t": t, "own": own, "other": other, "none": none }));
+    }
+    Ok(rows)
+}
+
+pub(crate) fn run(model: &Path, out: &Path, steps: usize, data: Option<&Path>) -> Result<(), String> {
     let root = crate::workspace_root();
     let device = wonder3d::diffusion::default_device();
     let pipeline = MultiViewPipeline::from_dir(model, &device).map_err(err)?;
+    let probe = match data {
+        Some(data) => condition_use(&pipeline, data)?,
+        None => Vec::new(),
+    };
     let size = pipeline.image_size() as u32;
     std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
     let picks = [TRAIN_MESHES[0], TRAIN_MESHES[3], TRAIN_MESHES[6], TRAIN_MESHES[5], HELD_OUT_MESH];
@@ -126,7 +193,9 @@ pub(crate) fn run(model: &Path, out: &Path, steps: usize) -> Result<(), String> 
     let sheet = contact_sheet(&labels, &rows).map_err(err)?;
     let picture = root.join("docs").join("img").join("small_model.png");
     sheet.write_png(&picture).map_err(err)?;
-    let record = serde_json::json!({ "model": model.display().to_string(), "objects": records });
+    let record = serde_json::json!({
+        "model": model.display().to_string(), "objects": records, "condition_use_x0_mse": probe,
+    });
     std::fs::write(out.join("eval.json"), serde_json::to_vec_pretty(&record).map_err(err)?)
         .map_err(|e| format!("{}: {e}", out.display()))?;
     eprintln!("wrote {} and {}", out.join("eval.json").display(), picture.display());

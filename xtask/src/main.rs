@@ -108,6 +108,10 @@ enum Task {
         /// DDIM steps.
         #[arg(long, default_value_t = 50)]
         steps: usize,
+        /// The training set the model was trained on: also measure how much its denoising
+        /// uses the condition (x₀ error with its own, another's and no condition).
+        #[arg(long)]
+        data: Option<PathBuf>,
     },
     /// Regenerate committed test fixtures with the Python peer tools.
     Fixtures {
@@ -577,7 +581,7 @@ fn main() -> ExitCode {
         Task::LoadGlb { files, vertices, triangles } => load_glb(&files, vertices, triangles),
         Task::Fixtures { which } => fixtures(&which),
         Task::TrainSmall { out, quick, resume } => train_small::run(&out, quick, resume),
-        Task::EvalSmall { model, out, steps } => eval_small::run(&model, &out, steps),
+        Task::EvalSmall { model, out, steps, data } => eval_small::run(&model, &out, steps, data.as_deref()),
         Task::ShipSmall { model } => train_small::ship(&model),
         Task::Bench { suite, criterion_args } => bench(&suite, &criterion_args),
     };

@@ -39,6 +39,8 @@ pub(crate) struct Schedule {
     pub stage_steps: [usize; 3],
     pub stage_lr: [f64; 3],
     pub objects_per_batch: usize,
+    /// Min-SNR γ of the UNet's loss (`None`: the plain MSE of the v-prediction).
+    pub min_snr_gamma: Option<f64>,
 }
 
 impl Schedule {
@@ -47,9 +49,14 @@ impl Schedule {
             samples: 12,
             size: 64,
             vae_steps: 1200,
-            stage_steps: [800, 4000, 1000],
+            stage_steps: [800, 6000, 1500],
             stage_lr: [5e-4, 3e-4, 2e-4],
             objects_per_batch: 1,
+            // The small model predicts v and weighs every timestep alike in v (x₀ error
+            // weighted by SNR + 1): with ε or Min-SNR weights (x₀ error weighted by
+            // min(SNR, 5)) the noisiest timesteps weigh 1/600 of the clean ones, and the first
+            // small model learned to ignore its input there (docs/training.md).
+            min_snr_gamma: None,
         }
     }
 
@@ -99,6 +106,9 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
     let set = TrainingSet::open(&data).map_err(err)?;
     eprintln!("[{:6.0}s] training set: {} samples at {}²", started.elapsed().as_secs_f64(), set.len(), set.size());
 
+    let scheduler =
+        SchedulerConfig::from_file(config_dir().join("scheduler").join("scheduler_config.json")).map_err(err)?;
+    let mut retrain = !resume;
     let mut pipeline = if resume {
         // The VAE and CLIP encoder of the earlier run (every checkpoint holds them).
         eprintln!(
@@ -106,13 +116,24 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
             started.elapsed().as_secs_f64(),
             stage1.display()
         );
-        MultiViewPipeline::from_dir(&stage1, &device).map_err(err)?
+        let earlier = MultiViewPipeline::from_dir(&stage1, &device).map_err(err)?;
+        if earlier.scheduler() != &scheduler {
+            // The noise schedule or the prediction changed: the UNet trains again from
+            // stage 1 (the VAE does not depend on them).
+            eprintln!("  the recipe's scheduler config changed: the UNet trains again from stage 1");
+            retrain = true;
+            let (_, vae, clip, _) = earlier.into_parts();
+            let unet_config = UNetConfig::from_file(config_dir().join("unet").join("config.json")).map_err(err)?;
+            let unet = UNet::random(&unet_config, 3, &device).map_err(err)?;
+            MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)?
+        } else {
+            earlier
+        }
     } else {
-        fresh_model(&set, &schedule, &device, started)?
+        fresh_model(&set, &schedule, scheduler, &device, started)?
     };
 
     // 4. The three stages.
-    let mut retrain = !resume;
     for (i, stage) in [Stage::MultiDomain, Stage::MixedDomain, Stage::CrossDomain].into_iter().enumerate() {
         let steps = schedule.stage_steps[i];
         let stage_dir = out.join(format!("stage{}", stage.number()));
@@ -137,6 +158,7 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
         let options = TrainOptions::for_stage(stage)
             .with_learning_rate(schedule.stage_lr[i])
             .with_warmup_steps((steps / 20).max(1))
+            .with_min_snr_gamma(schedule.min_snr_gamma)
             .with_seed(10 + i as u64);
         let run = RunOptions::default()
             .with_steps(steps)
@@ -170,7 +192,7 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
         "schedule": {
             "samples_per_mesh": schedule.samples, "size": schedule.size, "vae_steps": schedule.vae_steps,
             "stage_steps": schedule.stage_steps, "stage_lr": schedule.stage_lr,
-            "objects_per_batch": schedule.objects_per_batch,
+            "objects_per_batch": schedule.objects_per_batch, "min_snr_gamma": schedule.min_snr_gamma,
         },
         "meshes": TRAIN_MESHES, "held_out": HELD_OUT_MESH,
         "resumed": resume,
@@ -188,6 +210,7 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
 fn fresh_model(
     set: &TrainingSet,
     schedule: &Schedule,
+    scheduler: SchedulerConfig,
     device: &wonder3d::diffusion::Device,
     started: Instant,
 ) -> Result<MultiViewPipeline, String> {
@@ -229,8 +252,6 @@ fn fresh_model(
     let clip = ClipVision::random(&clip_config, 2, &device).map_err(err)?;
     let unet_config = UNetConfig::from_file(config_dir().join("unet").join("config.json")).map_err(err)?;
     let unet = UNet::random(&unet_config, 3, &device).map_err(err)?;
-    let scheduler =
-        SchedulerConfig::from_file(config_dir().join("scheduler").join("scheduler_config.json")).map_err(err)?;
     MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)
 }
 

@@ -190,6 +190,13 @@ impl TrainOptions {
         self
     }
 
+    /// Sets the Min-SNR γ (`None`: every timestep weighs the same in the prediction's own
+    /// MSE).
+    pub fn with_min_snr_gamma(mut self, gamma: Option<f64>) -> Self {
+        self.min_snr_gamma = gamma;
+        self
+    }
+
     /// Sets the seed of the random draws.
     pub fn with_seed(mut self, seed: u64) -> Self {
         self.seed = seed;

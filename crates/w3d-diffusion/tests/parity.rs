@@ -3,6 +3,9 @@
 //! preprocessing, each within 1e-4 max-abs on both CPU backends.
 
 mod common;
+// The conv tests share this test binary (one link instead of two).
+#[path = "parity_cases/conv.rs"]
+mod conv;
 
 use common::{fixture, max_abs, max_abs_diff, tensor, test_devices, values};
 use w3d_diffusion::{ClipVision, SafetensorsFile, Tensor, TensorData, UNet, Vae, clip_preprocess};

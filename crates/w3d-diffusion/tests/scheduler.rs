@@ -3,6 +3,9 @@
 //! with the tiny UNet, and a 50-step inversion round trip.
 
 mod common;
+// The dpm_solver tests share this test binary (one link instead of two).
+#[path = "scheduler_cases/dpm_solver.rs"]
+mod dpm_solver;
 
 use common::{fixture, max_abs_diff, tensor, values};
 use w3d_diffusion::{

@@ -31,3 +31,8 @@ pub fn write_input(path: &Path) {
     }
     image.write_png(path).unwrap();
 }
+
+/// A path as `&str` (test paths are UTF-8).
+pub fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}

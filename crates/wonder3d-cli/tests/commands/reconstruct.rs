@@ -1,12 +1,8 @@
 //! `wonder3d render` → `wonder3d reconstruct` → `wonder3d eval`: the command-line hand-over
 //! on small views, the report file, and clear errors for bad input.
 
+use crate::common::wonder3d;
 use std::path::PathBuf;
-use std::process::Command;
-
-fn wonder3d(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_wonder3d")).args(args).output().unwrap()
-}
 
 fn spot() -> String {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../assets/spot.obj").to_str().unwrap().to_string()

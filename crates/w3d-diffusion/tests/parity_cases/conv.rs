@@ -1,9 +1,7 @@
 //! The im2col + GEMM convolution equals the backend's `conv2d` for every kernel / stride /
 //! padding the models use, on both CPU backends.
 
-mod common;
-
-use common::{max_abs, max_abs_diff, test_devices};
+use crate::common::{max_abs, max_abs_diff, test_devices};
 use w3d_diffusion::gaussian_noise;
 use w3d_diffusion::nn::im2col_conv2d;
 use w3d_diffusion::{Tensor, TensorData};

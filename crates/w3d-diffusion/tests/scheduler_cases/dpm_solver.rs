@@ -2,9 +2,7 @@
 //! timesteps identical, σ within f32 rounding, and 10- and 20-step trajectories of a
 //! closed-form stand-in model (ε or v prediction) within 1e-4, on every test backend.
 
-mod common;
-
-use common::{fixture, max_abs_diff, tensor, test_devices};
+use crate::common::{fixture, max_abs_diff, tensor, test_devices};
 use w3d_diffusion::{DpmSolverMultistepScheduler, SafetensorsFile, SchedulerConfig, Tensor};
 
 fn fixture_file() -> SafetensorsFile {

@@ -1,15 +1,12 @@
 //! The hostile-user findings of issue #23 against the command line: every case ends quickly
 //! with a clear error (or does the right thing) and loses nothing.
 
+use crate::common::{s, wonder3d};
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+
 use std::time::{Duration, Instant};
 
 use wonder3d::{Mesh, ViewSet, load_mesh, save_mesh};
-
-fn wonder3d(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_wonder3d")).args(args).output().unwrap()
-}
 
 /// Runs a command that must fail within `seconds`, returning its stderr.
 fn fails_within(seconds: u64, args: &[&str]) -> String {
@@ -25,10 +22,6 @@ fn fails_within(seconds: u64, args: &[&str]) -> String {
 
 fn asset(name: &str) -> String {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../assets").join(name).to_str().unwrap().to_string()
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
 }
 
 /// Oracle views of the torus at 32² in `dir`.

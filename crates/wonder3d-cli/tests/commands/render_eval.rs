@@ -1,17 +1,13 @@
 //! `wonder3d render` writes a loadable oracle view set; `wonder3d eval` reports the
 //! documented JSON keys and near-zero distances for a mesh against itself.
 
+use crate::common::wonder3d;
 use std::path::PathBuf;
-use std::process::Command;
 
 use wonder3d::{ViewRig, ViewSet};
 
 fn assets() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../assets")
-}
-
-fn wonder3d(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_wonder3d")).args(args).output().unwrap()
 }
 
 #[test]

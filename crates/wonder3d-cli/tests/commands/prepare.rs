@@ -2,14 +2,9 @@
 //! RGBA image keeps its alpha; `--no-crop` keeps the frame; a cluttered photo is refused
 //! with the reasons; bad output paths fail before any work.
 
-use std::path::Path;
-use std::process::Command;
+use crate::common::{s, wonder3d};
 
 use wonder3d::Image;
-
-fn wonder3d(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_wonder3d")).args(args).output().unwrap()
-}
 
 /// A 200×150 RGB photo: a shaded teal ellipse on a light backdrop graded top to bottom.
 /// Returns the photo and its true mask.
@@ -28,10 +23,6 @@ fn photo() -> (Image, Vec<bool>) {
         }
     }
     (img, truth)
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
 }
 
 #[test]
