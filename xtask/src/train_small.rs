@@ -37,6 +37,8 @@ pub(crate) struct Schedule {
     pub size: u32,
     pub vae_steps: usize,
     pub stage_steps: [usize; 3],
+    /// Warm-up steps of each stage.
+    pub stage_warmup: [usize; 3],
     pub stage_lr: [f64; 3],
     pub objects_per_batch: usize,
     /// Min-SNR γ of the UNet's loss (`None`: the plain MSE of the v-prediction).
@@ -49,7 +51,8 @@ impl Schedule {
             samples: 12,
             size: 64,
             vae_steps: 1200,
-            stage_steps: [800, 6000, 1500],
+            stage_steps: [800, 6000, 1000],
+            stage_warmup: [40, 300, 75],
             stage_lr: [5e-4, 3e-4, 2e-4],
             objects_per_batch: 1,
             // The small model predicts v and weighs every timestep alike in v (x₀ error
@@ -62,7 +65,7 @@ impl Schedule {
 
     /// A few steps of everything, to check the recipe end to end and time its steps.
     pub(crate) fn quick() -> Self {
-        Self { samples: 2, size: 64, vae_steps: 20, stage_steps: [10, 10, 10], ..Self::full() }
+        Self { samples: 2, size: 64, vae_steps: 20, stage_steps: [10, 10, 10], stage_warmup: [1, 1, 1], ..Self::full() }
     }
 }
 
@@ -157,7 +160,7 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
         }
         let options = TrainOptions::for_stage(stage)
             .with_learning_rate(schedule.stage_lr[i])
-            .with_warmup_steps((steps / 20).max(1))
+            .with_warmup_steps(schedule.stage_warmup[i])
             .with_min_snr_gamma(schedule.min_snr_gamma)
             .with_seed(10 + i as u64);
         let run = RunOptions::default()
@@ -191,7 +194,7 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
     let record = serde_json::json!({
         "schedule": {
             "samples_per_mesh": schedule.samples, "size": schedule.size, "vae_steps": schedule.vae_steps,
-            "stage_steps": schedule.stage_steps, "stage_lr": schedule.stage_lr,
+            "stage_steps": schedule.stage_steps, "stage_warmup": schedule.stage_warmup, "stage_lr": schedule.stage_lr,
             "objects_per_batch": schedule.objects_per_batch, "min_snr_gamma": schedule.min_snr_gamma,
         },
         "meshes": TRAIN_MESHES, "held_out": HELD_OUT_MESH,
