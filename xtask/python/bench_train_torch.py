@@ -9,6 +9,7 @@ blocks of fixtures_diffusion.py on diffusers' modules. f32, all CPU threads. Pri
 object per configuration: median and all times in ms.
 """
 
+import inspect
 import json
 import os
 import statistics
@@ -38,7 +39,7 @@ MV_TO_2D = {
 def small_config():
     with open(os.path.join(root, "crates/w3d-diffusion/configs/small/unet/config.json")) as f:
         config = json.load(f)
-    known = UNet2DConditionModel.__init__.__code__.co_varnames
+    known = inspect.signature(UNet2DConditionModel.__init__).parameters
     out = {k: v for k, v in config.items() if not k.startswith("_") and k in known}
     out["down_block_types"] = [MV_TO_2D.get(t, t) for t in config["down_block_types"]]
     out["up_block_types"] = [MV_TO_2D.get(t, t) for t in config["up_block_types"]]
