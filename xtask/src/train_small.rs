@@ -223,7 +223,7 @@ fn fresh_model(
     for i in 0..set.len() {
         images.extend(set.images(i).map_err(err)?.domains.into_iter().flatten());
     }
-    let vae = Vae::random(&vae_config, 1, &device).map_err(err)?;
+    let vae = Vae::random(&vae_config, 1, device).map_err(err)?;
     // The mean is decoded (see VaeTrainOptions::sample_posterior): with a few thousand steps a
     // sampled posterior stays as wide as the prior and the reconstruction does not improve.
     let vae_options = VaeTrainOptions::default()
@@ -252,9 +252,9 @@ fn fresh_model(
     // 3. The frozen CLIP image encoder (random weights, see docs/training.md) and the UNet.
     let clip_config =
         ClipVisionConfig::from_file(config_dir().join("image_encoder").join("config.json")).map_err(err)?;
-    let clip = ClipVision::random(&clip_config, 2, &device).map_err(err)?;
+    let clip = ClipVision::random(&clip_config, 2, device).map_err(err)?;
     let unet_config = UNetConfig::from_file(config_dir().join("unet").join("config.json")).map_err(err)?;
-    let unet = UNet::random(&unet_config, 3, &device).map_err(err)?;
+    let unet = UNet::random(&unet_config, 3, device).map_err(err)?;
     MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)
 }
 
