@@ -162,23 +162,15 @@ pub fn run_demo(options: &DemoOptions, progress: &mut dyn FnMut(Progress)) -> Re
     let t = Instant::now();
     let geometry = evaluate(&output.geometry, &spot, &EvalOptions::default())?;
     let result_views = w3d_raster::render_oracle_views(&output.mesh, &rig, options.view_size)?;
-    let (mut psnrs, mut ssims) = (Vec::new(), Vec::new());
-    let labels = ["input colour", "input normal", "result colour", "result normal"];
-    let mut rows: Vec<SheetRow> =
-        labels.iter().map(|l| SheetRow { label: l.to_string(), images: Vec::new() }).collect();
-    for (input, result) in views.views().iter().zip(result_views.views()) {
-        let (Some(ci), Some(cr)) = (&input.colour, &result.colour) else {
-            return Err(Error::invalid("demo views", "colour images in the oracle views"));
-        };
-        let (ci, cr) = (ci.with_alpha(&input.mask)?, cr.with_alpha(&result.mask)?);
-        let (a, r) = (composite_over_white(&ci)?, composite_over_white(&cr)?);
-        psnrs.push(psnr(&a, &r)?);
-        ssims.push(ssim(&a, &r)?);
-        rows[0].images.push(ci);
-        rows[1].images.push(normal_picture(&input.normal, &input.mask)?);
-        rows[2].images.push(cr);
-        rows[3].images.push(normal_picture(&result.normal, &result.mask)?);
-    }
+    let (psnrs, ssims, [input_colour, input_normal, result_colour, result_normal]) =
+        score_renders(&views, &result_views)?;
+    let row = |label: &str, images: Vec<Image>| SheetRow { label: label.to_string(), images };
+    let rows = [
+        row("input colour", input_colour),
+        row("input normal", input_normal),
+        row("result colour", result_colour),
+        row("result normal", result_normal),
+    ];
     let names: Vec<&str> = rig.views.iter().map(|v| v.name.as_str()).collect();
     let sheet = contact_sheet(&names, &rows)?;
     let evaluate_seconds = t.elapsed().as_secs_f64();
@@ -205,6 +197,32 @@ pub fn run_demo(options: &DemoOptions, progress: &mut dyn FnMut(Progress)) -> Re
 /// that neither spot's white nor its black patches match.
 #[cfg(feature = "diffusion")]
 const BACKDROP: [f32; 3] = [0.42, 0.52, 0.66];
+
+/// PSNR per view, SSIM per view, and the sheet's pictures (input colour, input normal, result
+/// colour, result normal).
+type Scores = (Vec<f64>, Vec<f64>, [Vec<Image>; 4]);
+
+/// Texture PSNR and SSIM of each view's render of the result (`results`) against the input
+/// view it was made from (`inputs`, same rig and size), both composited over white, with the
+/// contact sheet's pictures of both.
+fn score_renders(inputs: &crate::ViewSet, results: &crate::ViewSet) -> Result<Scores> {
+    let (mut psnrs, mut ssims) = (Vec::new(), Vec::new());
+    let mut pictures: [Vec<Image>; 4] = Default::default();
+    for (input, result) in inputs.views().iter().zip(results.views()) {
+        let (Some(ci), Some(cr)) = (&input.colour, &result.colour) else {
+            return Err(Error::invalid("demo views", "colour images in the input views"));
+        };
+        let (ci, cr) = (ci.with_alpha(&input.mask)?, cr.with_alpha(&result.mask)?);
+        let (a, r) = (composite_over_white(&ci)?, composite_over_white(&cr)?);
+        psnrs.push(psnr(&a, &r)?);
+        ssims.push(ssim(&a, &r)?);
+        pictures[0].push(ci);
+        pictures[1].push(normal_picture(&input.normal, &input.mask)?);
+        pictures[2].push(cr);
+        pictures[3].push(normal_picture(&result.normal, &result.mask)?);
+    }
+    Ok((psnrs, ssims, pictures))
+}
 
 /// Spot's front render (orthographic, `size`²) over [`BACKDROP`]: an RGB photo.
 #[cfg(feature = "diffusion")]
@@ -257,24 +275,17 @@ pub fn run_demo_from_image(
     let truth = w3d_raster::render_oracle_views(&framed, generated.rig(), size)?;
     let agreement = w3d_eval::view_agreement(&truth, generated)?;
     let result_views = w3d_raster::render_oracle_views(&output.mesh, generated.rig(), size)?;
-    let (mut psnrs, mut ssims) = (Vec::new(), Vec::new());
-    let labels = ["generated colour", "generated normal", "true normal", "result colour", "result normal"];
-    let mut rows: Vec<SheetRow> =
-        labels.iter().map(|l| SheetRow { label: l.to_string(), images: Vec::new() }).collect();
-    for ((input, result), true_view) in generated.views().iter().zip(result_views.views()).zip(truth.views()) {
-        let (Some(ci), Some(cr)) = (&input.colour, &result.colour) else {
-            return Err(Error::invalid("demo views", "colour images in the generated views"));
-        };
-        let (ci, cr) = (ci.with_alpha(&input.mask)?, cr.with_alpha(&result.mask)?);
-        let (a, r) = (composite_over_white(&ci)?, composite_over_white(&cr)?);
-        psnrs.push(psnr(&a, &r)?);
-        ssims.push(ssim(&a, &r)?);
-        rows[0].images.push(ci);
-        rows[1].images.push(normal_picture(&input.normal, &input.mask)?);
-        rows[2].images.push(normal_picture(&true_view.normal, &true_view.mask)?);
-        rows[3].images.push(cr);
-        rows[4].images.push(normal_picture(&result.normal, &result.mask)?);
-    }
+    let (psnrs, ssims, [generated_colour, generated_normal, result_colour, result_normal]) =
+        score_renders(generated, &result_views)?;
+    let true_normal = truth.views().iter().map(|v| normal_picture(&v.normal, &v.mask)).collect::<Result<_>>()?;
+    let row = |label: &str, images: Vec<Image>| SheetRow { label: label.to_string(), images };
+    let mut rows = vec![
+        row("generated colour", generated_colour),
+        row("generated normal", generated_normal),
+        row("true normal", true_normal),
+        row("result colour", result_colour),
+        row("result normal", result_normal),
+    ];
     // The photo (rendered again at the views' size) and what the model saw, in a first row.
     let mut first = vec![spot_photo(&spot, size)?];
     first.extend(output.input.clone().filter(|i| i.width() == size && i.height() == size));
