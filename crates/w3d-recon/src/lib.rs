@@ -50,7 +50,10 @@ mod untangle;
 
 pub use coarse::{CoarseOptions, CoarseReport, reconstruct_coarse, silhouette_sphere, view_loss};
 pub use init::{InitChoice, InitOptions, InitReport, initial_mesh, visual_hull_mesh};
-pub use pipeline::{COARSE_RESEEDS, Preset, Progress, ReconOptions, ReconReport, Stage, StageTiming, reconstruct};
+pub use pipeline::{
+    COARSE_RESEEDS, CRUMPLED_MIN_PAIRS, CRUMPLED_PAIRS_PER_TRIANGLE, Preset, Progress, ReconOptions, ReconReport,
+    Stage, StageTiming, reconstruct,
+};
 
 pub use polish::{PolishReport, polish};
 pub use untangle::{UntangleReport, untangle, untangle_positions};

@@ -5,12 +5,12 @@ use std::fmt;
 use std::str::FromStr;
 use std::time::Instant;
 
-use w3d_core::{Error, Mesh, Result, ViewSet};
+use w3d_core::{Error, Mesh, Result, ViewSet, self_intersections};
 
 use crate::coarse::{CoarseOptions, CoarseReport, reconstruct_coarse};
 use crate::init::{InitChoice, InitOptions, InitReport, start_meshes};
 use crate::polish::{PolishReport, polish};
-use crate::untangle::{UntangleReport, untangle};
+use crate::untangle::{UntangleReport, untangle_crossing};
 
 /// Named speed/accuracy trade-offs of [`ReconOptions`] (numbers in `docs/accuracy.md`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -64,9 +64,9 @@ pub struct ReconOptions {
     pub init: InitOptions,
     /// The coarse optimisation.
     pub coarse: CoarseOptions,
-    /// Most rounds (separation and smoothing) [`untangle`] may run on the result (0 skips it).
+    /// Most rounds (separation and smoothing) [`untangle`](fn@crate::untangle) may run on the result (0 skips it).
     pub untangle_rounds: usize,
-    /// Steps of [`polish`] on the vertices [`untangle`] moved (0 skips it).
+    /// Steps of [`polish`] on the vertices [`untangle`](fn@crate::untangle) moved (0 skips it).
     pub polish_steps: usize,
 }
 
@@ -160,7 +160,7 @@ pub enum Stage {
     Init,
     /// The coarse optimisation with continuous remeshing.
     Coarse,
-    /// Smoothing away crossing triangles ([`untangle`]).
+    /// Smoothing away crossing triangles ([`untangle`](fn@crate::untangle)).
     Untangle,
     /// Fitting the untangled vertices to the views again without crossings ([`polish`]).
     Polish,
@@ -201,13 +201,13 @@ pub struct ReconReport {
     pub init: InitReport,
     /// Per-step losses and triangle counts of the coarse stage.
     pub coarse: CoarseReport,
-    /// Self-intersections of the coarse result and what [`untangle`] left.
+    /// Self-intersections of the coarse result and what [`untangle`](fn@crate::untangle) left.
     pub untangle: UntangleReport,
     /// The loss before and after [`polish`].
     pub polish: PolishReport,
     /// Per-stage wall-clock seconds.
     pub stages: Vec<StageTiming>,
-    /// Times the coarse stage ran again because [`untangle`] left crossings (at most
+    /// Times the coarse stage ran again because [`untangle`](fn@crate::untangle) left crossings (at most
     /// [`COARSE_RESEEDS`]): with the next remesher seed, from the second rerun on with the
     /// remesher's repairs on. 0 almost always on consistent views, and always 0 when
     /// [`ReconOptions::untangle_rounds`] is 0.
@@ -223,16 +223,17 @@ pub struct ReconReport {
 
 /// Reconstructs a closed mesh, in the world frame of the views' rig, from the normal maps and
 /// masks of `views`: [`crate::initial_mesh`] then
-/// [`reconstruct_coarse`], then [`untangle`] and [`polish`] (on the vertices untangling moved
+/// [`reconstruct_coarse`], then [`untangle`](fn@crate::untangle) and [`polish`] (on the vertices untangling moved
 /// and two rings around them). When the Poisson start misses a silhouette (IoU below
 /// [`InitOptions::hull_alternative_iou`]), the coarse stage also runs from
 /// [`crate::visual_hull_mesh`] and the hull result is kept when its settled loss (the mean of
 /// the last 10 % of steps) is lower than the Poisson result's by more than
 /// [`InitOptions::hull_alternative_margin`] (the report says which, with both losses). When
-/// [`untangle`] leaves crossings, the coarse stage runs again from the same start with the
+/// [`untangle`](fn@crate::untangle) leaves crossings, the coarse stage runs again from the same start with the
 /// next remesher seeds, all but the first rerun with the remesher's repairs on (at most
 /// [`COARSE_RESEEDS`] times; [`ReconReport::coarse_reseeds`]), and the run with the fewest
-/// crossings left is kept; a rerun reports its steps to `progress` as a coarse stage of its own. `progress` receives [`Progress`] events (pass
+/// crossings left is kept. A crumpled coarse mesh (views that contradict each other: see
+/// [`CRUMPLED_PAIRS_PER_TRIANGLE`]) is not untangled, and all its reruns have the repairs on; a rerun reports its steps to `progress` as a coarse stage of its own. `progress` receives [`Progress`] events (pass
 /// `&mut |_| {}` to ignore them).
 pub fn reconstruct(
     views: &ViewSet,
@@ -292,24 +293,26 @@ pub fn reconstruct(
     }
     let t = Instant::now();
     progress(Progress { stage: Stage::Untangle, done: 0, total: 1, loss: None });
-    let (mut untangled, mut untangle_report) = untangle(&mesh, options.untangle_rounds)?;
+    let (mut untangled, mut untangle_report, crumpled) = untangle_unless_crumpled(&mesh, options.untangle_rounds)?;
     // Untangling that ends with crossings left (rare on consistent views: 1 of 154 coarse
     // meshes in the measurements of `untangle`'s docs, a chaotic outcome of the remesher's
     // choices) gets the coarse stage again from the same start: with the next remesher seed,
     // then with the remesher's repairs on and the seeds after (views that contradict each
     // other crumple the surface into patches of sub-floor triangles that untangling cannot
-    // always clear; the repairs leave far fewer, at some cost in detail). The run with the
-    // fewest crossings left is kept.
+    // always clear; the repairs leave far fewer, at some cost in detail). A crumpled first
+    // run (see `CRUMPLED_PAIRS_PER_TRIANGLE`) has all its reruns with the repairs: another
+    // seed without them crumples the same way. The run with the fewest crossings left is kept.
     let (mut reseeds, mut reseed_seconds, mut repaired) = (0, 0.0, false);
     while untangle_report.after > 0 && options.untangle_rounds > 0 && reseeds < COARSE_RESEEDS {
         reseeds += 1;
-        // The first rerun as before with the next seed; the others with the repairs on.
-        let coarse =
-            options.coarse.with_seed(options.coarse.seed.wrapping_add(reseeds as u64)).with_remesh_repairs(reseeds > 1);
+        let coarse = options
+            .coarse
+            .with_seed(options.coarse.seed.wrapping_add(reseeds as u64))
+            .with_remesh_repairs(crumpled || reseeds > 1);
         let (again, again_report) = reconstruct_coarse(views, &start_mesh, &coarse, &mut |done, total, loss| {
             progress(Progress { stage: Stage::Coarse, done, total, loss: Some(loss) })
         })?;
-        let (again_untangled, again_untangle) = untangle(&again, options.untangle_rounds)?;
+        let (again_untangled, again_untangle, _) = untangle_unless_crumpled(&again, options.untangle_rounds)?;
         reseed_seconds += again_report.seconds;
         let seconds = coarse_report.seconds + again_report.seconds;
         if again_untangle.after < untangle_report.after {
@@ -344,7 +347,43 @@ pub fn reconstruct(
     Ok((mesh, report))
 }
 
-/// Most reruns of the coarse stage when [`untangle`] leaves crossings (see [`reconstruct`]):
+/// A coarse mesh counts as crumpled when it has more than [`CRUMPLED_MIN_PAIRS`] crossing
+/// triangle pairs and more than this many per triangle: its views contradict each other (a
+/// diffusion model's noise) so badly that the remesher multiplied the triangles, and
+/// [`reconstruct`] does not untangle it but runs the coarse stage again with the remesher's
+/// repairs.
+///
+/// Measured on tiny-model noise views at 32² (fast preset): first runs of 64 916 triangles
+/// with 186 612 pairs (2.9 per triangle; untangling took 50 s and left 419, a plain rerun the
+/// same again) and of 64 698 triangles with 122 472 pairs (1.9; 28 s, 76 left), where repaired
+/// runs have 6–10 k triangles and 400–1 200 pairs and untangle in about a second. The ratio
+/// alone does not tell these from a view of another object, which untangles well without the
+/// repairs: at 256² (default preset), one wrong view leaves 0.3–1.4 pairs per triangle on
+/// spot, the armadillo, the koala, the plane and the fandisk and 2.9 on the horse (11 908
+/// pairs on 4 062 triangles, untangled in seconds, CD 0.0198, where the repaired run has 544
+/// triangles). Hence both limits.
+pub const CRUMPLED_PAIRS_PER_TRIANGLE: f32 = 1.5;
+
+/// The fewest crossing pairs of a crumpled coarse mesh (see [`CRUMPLED_PAIRS_PER_TRIANGLE`]).
+/// The crumpled runs measured there had 120–190 k pairs and took 28–50 s to untangle; the
+/// wrong views, 2–17 k pairs and seconds.
+pub const CRUMPLED_MIN_PAIRS: usize = 50_000;
+
+/// [`untangle`](fn@crate::untangle), except for a crumpled mesh (see
+/// [`CRUMPLED_PAIRS_PER_TRIANGLE`]), which is returned as it is (report: no rounds) with `true`.
+fn untangle_unless_crumpled(mesh: &Mesh, max_rounds: usize) -> Result<(Mesh, UntangleReport, bool)> {
+    let mut positions = mesh.positions().to_vec();
+    let triangles = mesh.triangles();
+    let pairs = self_intersections(&positions, triangles)?;
+    if pairs.len() > CRUMPLED_MIN_PAIRS && pairs.len() as f32 > CRUMPLED_PAIRS_PER_TRIANGLE * triangles.len() as f32 {
+        let report = UntangleReport { before: pairs.len(), after: pairs.len(), rounds: 0 };
+        return Ok((mesh.clone(), report, true));
+    }
+    let report = untangle_crossing(&mut positions, triangles, pairs, max_rounds)?;
+    Ok((Mesh::new(positions, triangles.to_vec())?, report, false))
+}
+
+/// Most reruns of the coarse stage when [`untangle`](fn@crate::untangle) leaves crossings (see [`reconstruct`]):
 /// each with the next remesher seed, all but the first with
 /// [`CoarseOptions::remesh_repairs`] on.
 pub const COARSE_RESEEDS: usize = 3;
@@ -362,7 +401,7 @@ fn settled_loss(report: &CoarseReport) -> f32 {
     losses[losses.len() - k..].iter().sum::<f32>() / k as f32
 }
 
-/// Rings of neighbours around the vertices [`untangle`] moved that [`polish`] may move too.
+/// Rings of neighbours around the vertices [`untangle`](fn@crate::untangle) moved that [`polish`] may move too.
 /// Measured (orthographic, rocker arm, 60 steps): 2 rings CD 0.0075, 4 rings 0.0076.
 const POLISH_RINGS: usize = 2;
 
@@ -393,6 +432,38 @@ mod tests {
 
     fn report(losses: Vec<f32>) -> CoarseReport {
         CoarseReport { losses, triangle_counts: Vec::new(), seconds: 0.0 }
+    }
+
+    /// `n` triangles with corners drawn uniformly in the unit cube (a deterministic LCG).
+    fn random_triangles(n: usize) -> Mesh {
+        let mut state = 0x2545_f491_4f6c_dd1d_u64;
+        let mut next = move || {
+            state = state.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1_442_695_040_888_963_407);
+            (state >> 40) as f32 / (1u64 << 24) as f32
+        };
+        let positions: Vec<[f32; 3]> = (0..3 * n).map(|_| [next(), next(), next()]).collect();
+        let triangles = (0..n as u32).map(|t| [3 * t, 3 * t + 1, 3 * t + 2]).collect();
+        Mesh::new(positions, triangles).unwrap()
+    }
+
+    /// A mesh past both limits is left as it is; one with few crossings per triangle, or
+    /// too few crossings in all, is untangled.
+    #[test]
+    fn a_crumpled_mesh_is_not_untangled() {
+        let crumpled = random_triangles(800);
+        let pairs = self_intersections(crumpled.positions(), crumpled.triangles()).unwrap().len();
+        assert!(pairs > CRUMPLED_MIN_PAIRS, "{pairs} pairs");
+        let (same, report, is_crumpled) = untangle_unless_crumpled(&crumpled, 5).unwrap();
+        assert!(is_crumpled);
+        assert_eq!((report.before, report.after, report.rounds), (pairs, pairs, 0));
+        assert_eq!(same.positions(), crumpled.positions());
+
+        // Many pairs per triangle but fewer than the limit in all: untangled.
+        let dense = random_triangles(100);
+        let (moved, report, is_crumpled) = untangle_unless_crumpled(&dense, 5).unwrap();
+        assert!(!is_crumpled && report.before as f32 > CRUMPLED_PAIRS_PER_TRIANGLE * 100.0, "{report:?}");
+        assert_eq!(report.rounds, 5);
+        assert_ne!(moved.positions(), dense.positions());
     }
 
     /// Two starts are compared by where their losses settled, not by the last step alone.

@@ -97,7 +97,18 @@ pub fn untangle_positions(
     triangles: &[[u32; 3]],
     max_rounds: usize,
 ) -> Result<UntangleReport> {
-    let mut pairs = self_intersections(positions, triangles)?;
+    let pairs = self_intersections(positions, triangles)?;
+    untangle_crossing(positions, triangles, pairs, max_rounds)
+}
+
+/// [`untangle_positions`] given the crossing pairs of `positions` (as
+/// [`self_intersections`] finds them), for callers that have counted them already.
+pub(crate) fn untangle_crossing(
+    positions: &mut [[f32; 3]],
+    triangles: &[[u32; 3]],
+    mut pairs: Vec<[u32; 2]>,
+    max_rounds: usize,
+) -> Result<UntangleReport> {
     let before = pairs.len();
     // However many pairs: views that do not show one object (a wrong view, a diffusion
     // model's noise) leave more crossing pairs than triangles, and those untangle too. (An
