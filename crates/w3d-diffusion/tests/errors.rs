@@ -2,6 +2,11 @@
 //! truncated or non-safetensors files, unsupported config values.
 
 mod common;
+#[path = "../../w3d-core/tests/mutate/mod.rs"]
+mod mutate;
+
+#[path = "errors_cases/fuzz_weights.rs"]
+mod fuzz_weights;
 
 use common::fixture;
 use w3d_diffusion::{

@@ -6,6 +6,8 @@ mod common;
 // The conv tests share this test binary (one link instead of two).
 #[path = "parity_cases/conv.rs"]
 mod conv;
+#[path = "parity_cases/full_size.rs"]
+mod full_size;
 
 use common::{fixture, max_abs, max_abs_diff, tensor, test_devices, values};
 use w3d_diffusion::{ClipVision, SafetensorsFile, Tensor, TensorData, UNet, Vae, clip_preprocess};

@@ -1,11 +1,13 @@
 //! Sampling the colour views with visibility, per-vertex colour fusion and propagation
 //! to vertices no view sees.
 
+use std::f32::consts::FRAC_PI_2;
+
 use glam::{Mat3, Vec3};
 use rayon::prelude::*;
 use w3d_core::image::srgb_to_linear;
 use w3d_core::{Camera, Error, Projection, Result, ViewSet};
-use w3d_raster::{NO_TRIANGLE, rasterize_views};
+use w3d_raster::{NO_TRIANGLE, Raster, rasterize_views};
 
 use crate::charts::Surface;
 
@@ -37,11 +39,35 @@ pub(crate) struct ViewSampler {
     /// World size of a pixel: at unit depth for perspective cameras, absolute for orthographic.
     pixel_size: f32,
     perspective: bool,
+    /// The view's index in its rig.
+    pub view: usize,
+    /// Per pixel: on a silhouette or a crease of the mesh as this view sees it (see
+    /// [`edge_mask`]); empty when not asked for.
+    edge: Vec<bool>,
+}
+
+/// What a view shows of one surface point ([`ViewSampler::look`]).
+pub(crate) struct Look {
+    /// `−n·d`, the cosine between the normal and the direction to the camera (> 0).
+    pub cos: f32,
+    /// The visible share of the bilinear footprint (inside the mask and in front), in (0, 1].
+    pub coverage: f32,
+    /// The linear colour, averaged over the visible footprint.
+    pub colour: Vec3,
+    /// The nearest pixel is on a silhouette or a crease (false without an edge mask).
+    pub on_edge: bool,
 }
 
 /// Samplers for every view of `views` that has a colour image, with the mesh rasterised
-/// through the set's rig at the views' size. Errors when no view has colours.
-pub(crate) fn samplers(positions: &[[f32; 3]], triangles: &[[u32; 3]], views: &ViewSet) -> Result<Vec<ViewSampler>> {
+/// through the set's rig at the views' size. With `edge_normals` (unit normals per vertex
+/// of `positions`), each also gets the [`edge_mask`] of its view. Errors when no view has
+/// colours.
+pub(crate) fn samplers(
+    positions: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+    views: &ViewSet,
+    edge_normals: Option<&[Vec3]>,
+) -> Result<Vec<ViewSampler>> {
     let with_colour: Vec<usize> = (0..views.len()).filter(|&i| views.views()[i].colour.is_some()).collect();
     if with_colour.is_empty() {
         return Err(Error::invalid("views", "at least one view with a colour image"));
@@ -73,9 +99,62 @@ pub(crate) fn samplers(positions: &[[f32; 3]], triangles: &[[u32; 3]], views: &V
                 Projection::Orthographic { half_height } => (2.0 * half_height / h as f32, false),
                 Projection::Perspective { fov_y } => (2.0 * (0.5 * fov_y).tan() / h as f32, true),
             };
-            ViewSampler::new(camera, w, h, depth, colour, pixel_size, perspective)
+            let edge = edge_normals.map(|n| edge_mask(&raster, triangles, n)).unwrap_or_default();
+            let mut sampler = ViewSampler::new(camera, w, h, depth, colour, pixel_size, perspective);
+            (sampler.view, sampler.edge) = (i, edge);
+            sampler
         })
         .collect())
+}
+
+/// The change of the normalised view angle from one pixel to the next above which a pixel
+/// lies on a silhouette or a crease: 10° of 90° (the reference's texture refinement).
+pub(crate) const EDGE_ANGLE_STEP: f32 = 10.0 / 90.0;
+
+/// Pixels on the silhouettes and creases of the mesh as `raster` sees it: per pixel the
+/// view angle `a = (arccos(cos) − π/2) / (π/2)` (cos of the interpolated normal against the
+/// viewing ray, clamped to [−1, 0]; 0 on the background, 1 facing the camera), then
+/// `|∇a|` by central differences above [`EDGE_ANGLE_STEP`], dilated by a square of side
+/// `2·⌊width / 512⌋ + 1`. Colours there mix the object with what lies behind its edge.
+pub(crate) fn edge_mask(raster: &Raster, triangles: &[[u32; 3]], normals: &[Vec3]) -> Vec<bool> {
+    let (w, h) = (raster.width as usize, raster.height as usize);
+    let camera = raster.camera;
+    let angle: Vec<f32> = (0..w * h)
+        .into_par_iter()
+        .map(|i| {
+            let t = raster.triangle[i];
+            if t == NO_TRIANGLE {
+                return 0.0;
+            }
+            let [u, v] = raster.uv[i];
+            let tri = triangles[t as usize].map(|k| normals[k as usize]);
+            let n = (tri[0] * u + tri[1] * v + tri[2] * (1.0 - u - v)).normalize_or_zero();
+            let (x, y) = ((i % w) as f32 + 0.5, (i / w) as f32 + 0.5);
+            let direction = camera.ray(x, y, raster.width, raster.height).direction;
+            let cos = n.dot(direction).clamp(-1.0, 0.0);
+            ((cos.acos() - FRAC_PI_2) / FRAC_PI_2).clamp(0.0, 1.0)
+        })
+        .collect();
+    let at = |x: usize, y: usize| angle[y * w + x];
+    let edge: Vec<bool> = (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            let gx = 0.5 * (at((x + 1).min(w - 1), y) - at(x.saturating_sub(1), y));
+            let gy = 0.5 * (at(x, (y + 1).min(h - 1)) - at(x, y.saturating_sub(1)));
+            (gx * gx + gy * gy).sqrt() > EDGE_ANGLE_STEP
+        })
+        .collect();
+    let reach = w / 512;
+    if reach == 0 {
+        return edge;
+    }
+    (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            (y.saturating_sub(reach)..=(y + reach).min(h - 1))
+                .any(|yy| (x.saturating_sub(reach)..=(x + reach).min(w - 1)).any(|xx| edge[yy * w + xx]))
+        })
+        .collect()
 }
 
 impl ViewSampler {
@@ -89,13 +168,24 @@ impl ViewSampler {
         perspective: bool,
     ) -> Self {
         let (to_camera, forward) = (camera.basis().transpose(), camera.forward());
-        ViewSampler { camera, to_camera, forward, width, height, depth, colour, pixel_size, perspective }
+        let (view, edge) = (0, Vec::new());
+        ViewSampler { camera, to_camera, forward, width, height, depth, colour, pixel_size, perspective, view, edge }
     }
 
     /// The linear colour this view shows at surface point `p` with unit normal `n`, and
     /// its weight `max(0, −n·d)^k · (visible bilinear coverage)`; `None` where the view
     /// does not see the point (back-facing, occluded, outside the image or the mask).
     pub fn sample(&self, p: Vec3, n: Vec3, exponent: f32) -> Option<(f32, Vec3)> {
+        let look = self.look(p, n)?;
+        let cos = look.cos;
+        let weight =
+            if exponent.fract() == 0.0 && exponent <= 16.0 { cos.powi(exponent as i32) } else { cos.powf(exponent) };
+        Some((weight * look.coverage, look.colour))
+    }
+
+    /// What this view shows at surface point `p` with unit normal `n`; `None` where it does
+    /// not see the point (back-facing, occluded, outside the image or the mask).
+    pub fn look(&self, p: Vec3, n: Vec3) -> Option<Look> {
         let direction = if self.perspective { (p - self.camera.eye).normalize_or(self.forward) } else { self.forward };
         let cos = -n.dot(direction);
         if cos <= 0.0 {
@@ -125,9 +215,17 @@ impl ViewSampler {
                 coverage += w;
             }
         }
-        let weight =
-            if exponent.fract() == 0.0 && exponent <= 16.0 { cos.powi(exponent as i32) } else { cos.powf(exponent) };
-        (coverage > 1e-4).then(|| (weight * coverage, sum / coverage))
+        if coverage <= 1e-4 {
+            return None;
+        }
+        let (px, py) = (q.x.floor() as i64, q.y.floor() as i64);
+        let on_edge = !self.edge.is_empty()
+            && px >= 0
+            && py >= 0
+            && px < self.width as i64
+            && py < self.height as i64
+            && self.edge[py as usize * self.width as usize + px as usize];
+        Some(Look { cos, coverage, colour: sum / coverage, on_edge })
     }
 }
 

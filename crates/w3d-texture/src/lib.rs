@@ -5,7 +5,8 @@
 //! maps, bit-grid packing with padding), projects the views into the atlas texels with the
 //! same visibility and weights, fills unseen texels from the vertex colours and dilates
 //! across chart borders. [`fuse_vertex_colours`] is the per-vertex part alone (the
-//! vertex-colour fallback).
+//! vertex-colour fallback). [`refine_texture`] projects new views (sharper, or enhanced)
+//! into the atlas a textured mesh already has, leaving silhouettes and grazing views out.
 //!
 //! Conventions: positions in the canonical frame (`docs/architecture.md`, "Conventions"); uvs in the OBJ
 //! convention of [`Mesh::with_uvs`] (v up); view colours are sRGB in `[0, 1]` and are
@@ -40,8 +41,10 @@ mod charts;
 mod fusion;
 mod lscm;
 mod pack;
+mod refine;
 
 pub use atlas::{Atlas, AtlasOptions, AtlasReport, build_atlas};
+pub use refine::{RefineTextureOptions, RefineTextureReport, refine_texture};
 
 use glam::Vec3;
 use w3d_core::image::linear_to_srgb;
@@ -217,7 +220,7 @@ fn fuse_views(
     if !(k.is_finite() && k >= 0.0) {
         return Err(Error::invalid("view_weight_exponent", format!("a finite value ≥ 0, got {k}")));
     }
-    let samplers = fusion::samplers(mesh.positions(), mesh.triangles(), views)?;
+    let samplers = fusion::samplers(mesh.positions(), mesh.triangles(), views, None)?;
     let surface = Surface::new(mesh.positions(), mesh.triangles());
     let normals = fusion::welded_normals(&surface);
     let fused = fusion::fuse(&surface, &normals, &samplers, k)?;

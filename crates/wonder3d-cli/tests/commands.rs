@@ -1,9 +1,16 @@
-//! The CLI's commands other than generate, batch and dataset, one test binary for all (one
-//! link instead of five): `info`, `render` / `eval` / `texture`, `prepare`, `reconstruct` and
-//! `demo`, and hostile input to all of them.
+//! The CLI's commands, one test binary for all (one link instead of nine): `info`, `render` /
+//! `eval` / `texture`, `prepare`, `reconstruct` and `demo`, hostile input to all of them,
+//! `generate` / `run` / `demo --from-image` with the tiny model, `batch`, `dataset` and
+//! `train`. Run one group with `cargo test --release -p wonder3d-cli --test commands <group>::`.
 
 mod common;
 
+#[path = "commands/batch.rs"]
+mod batch;
+#[path = "commands/dataset.rs"]
+mod dataset;
+#[path = "commands/generate.rs"]
+mod generate;
 #[path = "commands/hostile.rs"]
 mod hostile;
 #[path = "commands/info.rs"]
@@ -14,3 +21,5 @@ mod prepare;
 mod reconstruct;
 #[path = "commands/render_eval.rs"]
 mod render_eval;
+#[path = "commands/train.rs"]
+mod train;

@@ -1,5 +1,5 @@
-//! Byte mutations for the loaders' fuzz tests (`fuzz_loaders.rs` here, and w3d-diffusion's
-//! `fuzz_weights.rs`, which includes this file): flips, overwrites, little-endian integers
+//! Byte mutations for the loaders' fuzz tests (`files/fuzz_loaders.rs` here, and w3d-diffusion's
+//! `errors_cases/fuzz_weights.rs`, whose test binary includes this file): flips, overwrites, little-endian integers
 //! at any offset, truncation, inserted tokens (numbers, JSON fragments, huge counts),
 //! duplicated and removed chunks, drawn by proptest.
 #![allow(dead_code)]

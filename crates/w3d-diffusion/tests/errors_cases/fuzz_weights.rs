@@ -6,17 +6,13 @@
 //! the model from the fixture weights or fail with an error.
 //!
 //! 64 cases per property by default; `W3D_FUZZ_CASES=5000 cargo test --release -p
-//! w3d-diffusion --test fuzz_weights` runs a campaign (`docs/robustness.md`).
-
-mod common;
-#[path = "../../w3d-core/tests/mutate/mod.rs"]
-mod mutate;
+//! w3d-diffusion --test errors fuzz_weights::` runs a campaign (`docs/robustness.md`).
 
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use common::fixture;
-use mutate::{Mutation, apply, mutations};
+use crate::common::fixture;
+use crate::mutate::{self, Mutation, apply, mutations};
 use proptest::prelude::*;
 use w3d_diffusion::{
     ClipVision, ClipVisionConfig, SafetensorsFile, SchedulerConfig, UNet, UNetConfig, Vae, VaeConfig, default_device,

@@ -1,7 +1,7 @@
 //! `wonder3d batch`: view folders and images (with the tiny model, loaded once) in one run,
 //! a failing item recorded while the others finish, checks before any work, resume.
 
-mod common;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

@@ -5,10 +5,10 @@
 //! finite values, consistent sizes). `Image::read_exr` checks the EXR header's size first.
 //!
 //! Each property runs 128 cases by default (the whole file takes a few seconds in
-//! release); `W3D_FUZZ_CASES=20000 cargo test --release -p w3d-core --test fuzz_loaders`
+//! release); `W3D_FUZZ_CASES=20000 cargo test --release -p w3d-core --test files fuzz_loaders::`
 //! runs a longer campaign (`docs/robustness.md`).
 
-mod mutate;
+use crate::mutate;
 
 use std::path::Path;
 use std::sync::OnceLock;

@@ -2,7 +2,7 @@
 //! forward within 8 GiB peak memory, and one guided denoising step of the real-size
 //! multi-view UNet (12 images at 32×32 latents, 24 UNet images with guidance) is timed with its
 //! peak memory on ndarray and flex (ignored by default: slow; run with
-//! `cargo test --release -p w3d-diffusion --test full_size -- --ignored --nocapture --test-threads 1`).
+//! `cargo test --release -p w3d-diffusion --test parity full_size:: -- --ignored --nocapture --test-threads 1`).
 
 use std::path::PathBuf;
 use std::time::Instant;

@@ -1,6 +1,6 @@
 //! OBJ / PLY / GLB round trips on every real test mesh.
 
-mod common;
+use crate::common;
 
 use w3d_core::{Mesh, load_mesh, save_mesh};
 

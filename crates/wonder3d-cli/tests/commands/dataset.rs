@@ -1,10 +1,7 @@
 //! `wonder3d dataset`: a training set whose samples reconstruct, `--camera` fixing the rig,
 //! and bad input refused before any rendering with nothing written.
 
-mod common;
-// `wonder3d train`'s tests share this test binary (one link instead of two).
-#[path = "dataset_cases/train.rs"]
-mod train;
+use crate::common;
 
 use std::path::{Path, PathBuf};
 

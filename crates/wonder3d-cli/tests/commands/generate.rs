@@ -3,13 +3,13 @@
 //! bad input gets clear errors.
 #![cfg(feature = "diffusion")]
 
-mod common;
+use crate::common;
 
 use common::{tiny_weights, wonder3d, write_input};
 use wonder3d::Image;
 
 #[test]
-fn generate_writes_views_that_reconstruct_reads() {
+fn generate_writes_a_view_set_reconstruct_reads() {
     let dir = tempfile::tempdir().unwrap();
     let input = dir.path().join("disc.png");
     write_input(&input);
@@ -37,21 +37,10 @@ fn generate_writes_views_that_reconstruct_reads() {
     }
     assert!(views.join("input.png").is_file());
     assert!(views.join("views.png").is_file(), "the contact sheet");
+    // What `reconstruct` reads (`run_chains_generate_reconstruct_and_texture` reconstructs).
     let set = wonder3d::ViewSet::load(&views).unwrap();
     assert_eq!((set.rig().name.as_str(), set.width(), set.height()), ("wonder3d_persp", 32, 32));
-
-    let mesh = dir.path().join("mesh.obj");
-    let run = wonder3d(&[
-        "reconstruct",
-        views.to_str().unwrap(),
-        "--out",
-        mesh.to_str().unwrap(),
-        "--preset",
-        "fast",
-        "--quiet",
-    ]);
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    assert!(mesh.is_file());
+    assert!(set.views().iter().all(|v| v.colour.is_some()));
 }
 
 #[test]
