@@ -415,7 +415,7 @@ is kept (genus 1).
 inside test of an open cup is ill-defined), so only CD and F-score count there. The upright
 teacup's interior is seen by no view at elevation 0 and is filled. Turned to open towards the
 front camera, the saucer dominates the silhouette and the concave check does not fire; the
-check is proven on a closed bowl in `crates/w3d-recon/tests/init.rs`. For both teacups the
+check is proven on a closed bowl in `crates/w3d-recon/tests/reconstruction/init.rs`. For both teacups the
 Poisson start misses the side silhouettes (the handle and the saucer's rim), and the
 visual-hull start reaches a loss about a third lower and is kept. In the perspective rig the
 hammer's two results explain the views about equally well (settled losses within ±20 % of

@@ -39,7 +39,7 @@ pub struct RemeshParams {
     /// crowded regions, which is why the optimizer's floor passes use 2 (see
     /// [`crate::RemeshOptions::edge_floor_passes`]). Measured for the main pass, before the
     /// floor passes existed: on the spot oracle reconstruction
-    /// (`tests/tests/recon_oracle.rs`, default preset) 3 gives CD 0.0028 with 9 700
+    /// (`tests/tests/end_to_end/recon_oracle.rs`, default preset) 3 gives CD 0.0028 with 9 700
     /// triangles, 2 gives CD 0.0032 with 8 272.
     pub collapse_rank_rounds: u32,
 }
@@ -439,7 +439,7 @@ pub fn remove_valence3_vertices(
 ///    fit keeps pulling vertices into a crease: there the midpoint folds a face, and without
 ///    them a few edges stay below the lower limit pass after pass. (Stricter
 ///    guards block the collapses that clean up the folds made by motion: in the shape test
-///    (`tests/shape_fit.rs`) the mesh then grows without bound — from ~30 k to 10⁵–10⁶
+///    (`tests/remesh/shape_fit.rs`) the mesh then grows without bound — from ~30 k to 10⁵–10⁶
 ///    triangles within 300 steps, with the flipped faces growing alike. Measured variants,
 ///    each with the others off: rejecting collapses that leave a face around the edge
 ///    flipped that was not (per face, or by the flipped count or area of the faces around

@@ -30,7 +30,7 @@ pub struct RemeshOptions {
     /// One reference pass does not guarantee this for every edge: it collapses only a
     /// far-apart subset of the short edges, a collapse lengthens the edges around it (split
     /// in the next pass), and splitting the long edge of a sliver cuts off a short one (in
-    /// the shape test, `tests/shape_fit.rs`, ~40–70 edges of ~19 000 are below
+    /// the shape test, `tests/remesh/shape_fit.rs`, ~40–70 edges of ~19 000 are below
     /// `lims.0 · (1 − tol)` after the reference pass in a typical step). The
     /// [`RemeshOptions::edge_floor_passes`] collapse those, so that every edge ends above the
     /// lower limit.

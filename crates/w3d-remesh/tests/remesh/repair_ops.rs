@@ -1,7 +1,7 @@
 //! The two remesh steps that are not in the reference: valence-3 vertex removal and fold
 //! relaxation, on small hand-made meshes.
 
-mod common;
+use crate::common;
 
 use common::{canonical, face_normal, flipped_faces, grid};
 use glam::Vec3;

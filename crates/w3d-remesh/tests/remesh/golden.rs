@@ -1,7 +1,7 @@
 //! Golden cases ported from the reference implementation's unit tests (reference part A
 //! and F), on the same small inputs, plus the optimizer arithmetic of F.
 
-mod common;
+use crate::common;
 
 use approx::assert_abs_diff_eq;
 use common::{canonical, grid, signed_areas_z};

@@ -4,7 +4,7 @@
 //! zero-area and without flipped faces, with target lengths inside the limits and one entry
 //! per vertex in every state array; and the edge flips on their own never flip a face.
 
-mod common;
+use crate::common;
 
 use common::{ClosestPoints, face_normal, flipped_faces};
 use glam::Vec3;

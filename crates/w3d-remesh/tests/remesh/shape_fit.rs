@@ -4,7 +4,7 @@
 //! (unit-cube units), have no flipped faces, and keep every edge within the limits
 //! `[lo·(1 − tol), hi·(1 + tol)]` after the last remesh.
 
-mod common;
+use crate::common;
 
 use common::{ClosestPoints, flipped_faces, load_unit, samples};
 use glam::Vec3;

@@ -1,0 +1,7 @@
+//! The facade's integration tests, in one test binary (one link instead of 2). Run one group with
+//! `cargo test --release -p wonder3d --test facade <group>::`.
+
+#[path = "facade/batch.rs"]
+mod batch;
+#[path = "facade/dataset.rs"]
+mod dataset;
