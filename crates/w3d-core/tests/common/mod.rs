@@ -1,7 +1,9 @@
-//! Helpers shared by the integration tests (included with `mod common;`).
+//! Helpers shared by the integration tests (`tests/files.rs`).
 #![allow(dead_code)]
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+
+use w3d_core::Error;
 
 /// `../shared/data/meshes` beside the repository.
 pub fn shared_meshes() -> PathBuf {
@@ -23,4 +25,18 @@ pub fn shared_mesh_files() -> Vec<PathBuf> {
         .collect();
     files.sort();
     files
+}
+
+/// Writes `bytes` to `dir/name` and returns the path.
+pub fn write(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
+    let p = dir.join(name);
+    std::fs::write(&p, bytes).unwrap();
+    p
+}
+
+/// The error's message, after checking that it names `path`.
+pub fn message_for(err: Error, path: &Path) -> String {
+    let msg = err.to_string();
+    assert!(msg.contains(&path.display().to_string()), "error should name {}: {msg}", path.display());
+    msg
 }

@@ -1,21 +1,7 @@
 //! Bad input gives the documented error, naming the file and field, and never panics.
 
-use std::path::Path;
-
+use crate::common::{message_for, write};
 use w3d_core::{Error, Image, ViewRig, ViewSet, load_mesh};
-
-fn write(dir: &Path, name: &str, bytes: &[u8]) -> std::path::PathBuf {
-    let p = dir.join(name);
-    std::fs::write(&p, bytes).unwrap();
-    p
-}
-
-/// The error's message, after checking that it names `path`.
-fn message_for(err: Error, path: &Path) -> String {
-    let msg = err.to_string();
-    assert!(msg.contains(&path.display().to_string()), "error should name {}: {msg}", path.display());
-    msg
-}
 
 #[test]
 fn missing_file_is_an_io_error() {

@@ -2,24 +2,12 @@
 //! error naming the file and field (or, for output, leaves every existing file as it was),
 //! quickly and without a huge allocation.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::{Duration, Instant};
 
+use crate::common::{message_for, write};
 use w3d_core::io::{write_glb, write_obj};
 use w3d_core::{Error, Image, Mesh, ViewImages, ViewRig, ViewSet, load_mesh};
-
-fn write(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
-    let p = dir.join(name);
-    std::fs::write(&p, bytes).unwrap();
-    p
-}
-
-/// The error's message, after checking that it names `path`.
-fn message_for(err: Error, path: &Path) -> String {
-    let msg = err.to_string();
-    assert!(msg.contains(&path.display().to_string()), "error should name {}: {msg}", path.display());
-    msg
-}
 
 /// Loads `path`, expecting an error within a second (the hangs took minutes).
 fn load_error(path: &Path) -> String {

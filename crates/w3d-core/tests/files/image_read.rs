@@ -3,15 +3,10 @@
 //! unknown formats, never a panic.
 
 use std::io::Cursor;
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
+use crate::common::write;
 use w3d_core::{Image, ReadLimits};
-
-fn write(dir: &Path, name: &str, bytes: &[u8]) -> PathBuf {
-    let p = dir.join(name);
-    std::fs::write(&p, bytes).unwrap();
-    p
-}
 
 /// The error message of reading `path`, after checking that it names the file.
 fn read_error(path: &Path) -> String {

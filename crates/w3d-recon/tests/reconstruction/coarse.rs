@@ -1,14 +1,14 @@
 //! Coarse reconstruction from oracle views of real meshes.
 
-use w3d_core::{ViewRig, load_mesh};
+use w3d_core::ViewRig;
+
+use crate::common::spot;
 use w3d_eval::{EvalOptions, evaluate};
 use w3d_recon::{CoarseOptions, reconstruct_coarse, silhouette_sphere};
 
 #[test]
 fn spot_is_recovered_from_its_oracle_views() {
-    let mut spot =
-        load_mesh(concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets/spot.obj")).unwrap().without_attributes();
-    spot.normalize_unit_cube();
+    let spot = spot();
     let rig = ViewRig::wonder3d_ortho();
     let views = w3d_raster::render_oracle_views(&spot, &rig, 128).unwrap();
     let init = silhouette_sphere(&views, 3).unwrap();

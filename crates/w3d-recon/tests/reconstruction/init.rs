@@ -2,23 +2,11 @@
 //! to the object, the concave check firing for a cup that opens towards the camera and not
 //! for convex objects, and the perspective rig.
 
-use w3d_core::{Mesh, ViewRig, load_mesh};
+use w3d_core::{Mesh, ViewRig};
+
+use crate::common::{shared_mesh, spot};
 use w3d_eval::{EvalOptions, evaluate};
 use w3d_recon::{InitChoice, InitOptions, initial_mesh};
-
-fn shared_mesh(name: &str) -> Mesh {
-    let path = format!("{}/../../../shared/data/meshes/{name}", env!("CARGO_MANIFEST_DIR"));
-    let mut mesh = load_mesh(&path).unwrap().without_attributes();
-    mesh.normalize_unit_cube();
-    mesh
-}
-
-fn spot() -> Mesh {
-    let mut spot =
-        load_mesh(concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets/spot.obj")).unwrap().without_attributes();
-    spot.normalize_unit_cube();
-    spot
-}
 
 #[test]
 fn poisson_start_is_closed_and_close_to_spot() {

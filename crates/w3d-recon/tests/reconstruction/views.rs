@@ -1,16 +1,11 @@
 //! Reconstruction from view sets other than six clean views: a subset of the rig's views
 //! (`ViewSet::subset`: a view left out), and a view of another object in place of one.
 
-use w3d_core::{Mesh, ViewRig, ViewSet, load_mesh};
+use w3d_core::{ViewRig, ViewSet};
+
+use crate::common::{shared_mesh, spot};
 use w3d_eval::{SurfaceComparison, sample_surface};
 use w3d_recon::{InitChoice, Preset, ReconOptions, initial_mesh, reconstruct, reconstruct_coarse, untangle};
-
-fn spot() -> Mesh {
-    let mut spot =
-        load_mesh(concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets/spot.obj")).unwrap().without_attributes();
-    spot.normalize_unit_cube();
-    spot
-}
 
 /// Any subset reconstructs: without a side view as before, without the front view from the
 /// left and right views integrated instead, and without both a front-back and a left-right
@@ -44,13 +39,6 @@ fn any_subset_of_the_rig_reconstructs() {
     assert!(all.subset(["front", "top"]).is_err());
     assert!(all.subset(["front", "front"]).is_err());
     assert!(all.subset(Vec::<&str>::new()).is_err());
-}
-
-fn shared_mesh(name: &str) -> Mesh {
-    let path = format!("{}/../../../shared/data/meshes/{name}", env!("CARGO_MANIFEST_DIR"));
-    let mut mesh = load_mesh(&path).unwrap().without_attributes();
-    mesh.normalize_unit_cube();
-    mesh
 }
 
 /// The fandisk's views with the `front_right` view taken from spot's: views that contradict

@@ -106,8 +106,7 @@ fn images_share_one_model_and_take_their_own_seed() {
     ]);
     assert!(run.status.success(), "{}", text(&run.stderr));
     for (id, seed) in [("disc", 42), ("disc-7", 7)] {
-        let report: serde_json::Value =
-            serde_json::from_str(&std::fs::read_to_string(out.join(id).join("report.json")).unwrap()).unwrap();
+        let report: serde_json::Value = common::read_json(&out.join(id).join("report.json"));
         assert_eq!(report["generation"]["seed"], seed);
         assert_eq!(report["generation"]["steps"], 2);
         assert!(out.join(id).join("views/cameras.json").is_file());

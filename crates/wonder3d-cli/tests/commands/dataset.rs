@@ -36,7 +36,7 @@ fn dataset_writes_samples_that_load_and_reconstruct() {
     let run = wonder3d(&args);
     assert!(run.status.success(), "{}", stderr(&run));
     assert!(String::from_utf8_lossy(&run.stdout).contains("wrote 4 samples of 2 meshes"));
-    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("dataset.json")).unwrap()).unwrap();
+    let json: serde_json::Value = common::read_json(&out.join("dataset.json"));
     assert_eq!((json["format"].as_str(), json["version"].as_u64()), (Some("wonder3d-rs dataset"), Some(2)));
     assert_eq!((json["size"].as_u64(), json["seed"].as_u64()), (Some(64), Some(3)));
     let samples = json["samples"].as_array().unwrap();
@@ -81,7 +81,7 @@ fn dataset_camera_ortho_fixes_the_rig() {
         "ortho",
     ]);
     assert!(run.status.success(), "{}", stderr(&run));
-    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("dataset.json")).unwrap()).unwrap();
+    let json: serde_json::Value = common::read_json(&out.join("dataset.json"));
     for sample in json["samples"].as_array().unwrap() {
         assert_eq!(sample["camera"], "ortho");
         let views = ViewSet::load(out.join(sample["id"].as_str().unwrap())).unwrap();

@@ -164,7 +164,7 @@ fn demo_from_image_goes_from_a_photo_to_a_scored_mesh() {
         "--quiet",
     ]);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    let report: serde_json::Value = common::read_json(&out.join("report.json"));
     // The tiny checkpoint's views are noise: the report is checked for its content, not scores.
     let agreement = &report["generated_views"];
     let angle = agreement["normal_angle_deg"].as_f64().unwrap();

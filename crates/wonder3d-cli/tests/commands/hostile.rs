@@ -49,7 +49,7 @@ fn reconstruct_refuses_absurd_cameras_at_once() {
     let views = dir.path().join("views");
     render_torus(&views);
     let cameras = views.join("cameras.json");
-    let original: serde_json::Value = serde_json::from_slice(&std::fs::read(&cameras).unwrap()).unwrap();
+    let original = crate::common::read_json(&cameras);
     for half_height in [100.0, 1e30] {
         let mut json = original.clone();
         for v in json["views"].as_array_mut().unwrap() {

@@ -28,7 +28,7 @@ fn reconstruct_reads_rendered_views_and_writes_a_mesh_and_report() {
         "--quiet",
     ]);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(&report).unwrap()).unwrap();
+    let json = crate::common::read_json(&report);
     assert_eq!(json["init"]["choice"], "poisson", "{json}");
     assert_eq!(
         json["coarse"]["losses"].as_array().unwrap().len(),
@@ -76,7 +76,7 @@ fn demo_writes_glb_contact_sheet_and_report() {
         "--quiet",
     ]);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    let report = crate::common::read_json(&out.join("report.json"));
     let chamfer = report["geometry"]["chamfer"].as_f64().unwrap();
     let psnr = report["texture_psnr_input_views"].as_f64().unwrap();
     assert!(chamfer < 0.015, "{report}");
