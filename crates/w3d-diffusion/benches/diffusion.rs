@@ -1,8 +1,8 @@
 //! `cargo xtask bench diffusion`: the real-size UNet forward (batch 2 × 8 × 32 × 32, the
-//! Wonder3D base config, random weights) on flex and ndarray, and the UNet's convolution
-//! layers with the backend `conv2d` (direct) against im2col + GEMM, and one guided denoising
+//! Wonder3D base config, random weights) on flex (and ndarray with the `ndarray` feature), and
+//! the UNet's convolution layers with the backend `conv2d` (direct) against im2col + GEMM, and one guided denoising
 //! step of the real-size multi-view cross-domain UNet (12 images at 32×32 latents, 24 UNet
-//! images with guidance, `configs/wonder3d/unet_mv`) on ndarray — only with
+//! images with guidance, `configs/wonder3d/unet_mv`) on the same backends — only with
 //! `W3D_BENCH_MV_STEP=1` (`W3D_BENCH_MV_STEP=1 cargo bench -p w3d-diffusion --bench diffusion --
 //! mv_step`): one iteration takes minutes on 2 cores and the models need ~8 GiB. The xtask then times diffusers on torch CPU with the same config and
 //! input as the single-view forward (xtask/python/bench_diffusion_torch.py).
@@ -27,8 +27,13 @@ fn unet_config() -> UNetConfig {
     UNetConfig::from_file(config_path("unet/config.json")).expect("real UNet config")
 }
 
+/// Flex, and with the `ndarray` feature Burn's ndarray backend.
 fn devices() -> Vec<(&'static str, Device)> {
-    vec![("flex", w3d_diffusion::default_device()), ("ndarray", w3d_diffusion::ndarray_device())]
+    #[allow(unused_mut)]
+    let mut devices = vec![("flex", w3d_diffusion::default_device())];
+    #[cfg(feature = "ndarray")]
+    devices.push(("ndarray", w3d_diffusion::ndarray_device()));
+    devices
 }
 
 fn unet_forward(c: &mut Criterion) {
@@ -92,33 +97,35 @@ fn conv_layers(c: &mut Criterion) {
     group.finish();
 }
 
-/// One guided DDIM step of the real-size multi-view pipeline (random weights) on ndarray.
+/// One guided DDIM step of the real-size multi-view pipeline (random weights) per backend.
 fn multiview_step(c: &mut Criterion) {
     if std::env::var_os("W3D_BENCH_MV_STEP").is_none() {
         return;
     }
     let mut group = c.benchmark_group("mv_step_b12_cfg_32x32");
     group.sample_size(10).measurement_time(Duration::from_secs(60)).warm_up_time(Duration::from_millis(1));
-    let device = w3d_diffusion::ndarray_device();
-    let unet = UNet::random(&UNetConfig::from_file(config_path("unet_mv/config.json")).expect("config"), 1, &device);
-    let vae = Vae::random(&VaeConfig::from_file(config_path("vae/config.json")).expect("config"), 2, &device);
-    let clip_config = ClipVisionConfig::from_file(config_path("image_encoder/config.json")).expect("config");
-    let clip = ClipVision::random(&clip_config, 3, &device);
-    let scheduler = SchedulerConfig::from_file(config_path("scheduler/scheduler_config.json")).expect("config");
-    let pipeline = MultiViewPipeline::new(unet.expect("unet"), vae.expect("vae"), clip.expect("clip"), scheduler)
-        .expect("pipeline");
-    let cond = Conditioning {
-        embeds: gaussian_noise([1, 768], 4, &device),
-        latent: gaussian_noise([1, 4, 32, 32], 5, &device),
-    };
-    let options = SampleOptions { steps: 1, guidance: 2.0, eta: 1.0, ..SampleOptions::default() };
-    let noise = pipeline.initial_noise(6, &device);
-    group.bench_function("ndarray", |b| {
-        b.iter(|| {
-            let latents = pipeline.sample_from(noise.clone(), &cond, &options, &mut |_, _| {}).expect("step");
-            latents.into_data().try_to_vec::<f32>().expect("values")
-        })
-    });
+    for (name, device) in devices() {
+        let unet =
+            UNet::random(&UNetConfig::from_file(config_path("unet_mv/config.json")).expect("config"), 1, &device);
+        let vae = Vae::random(&VaeConfig::from_file(config_path("vae/config.json")).expect("config"), 2, &device);
+        let clip_config = ClipVisionConfig::from_file(config_path("image_encoder/config.json")).expect("config");
+        let clip = ClipVision::random(&clip_config, 3, &device);
+        let scheduler = SchedulerConfig::from_file(config_path("scheduler/scheduler_config.json")).expect("config");
+        let pipeline = MultiViewPipeline::new(unet.expect("unet"), vae.expect("vae"), clip.expect("clip"), scheduler)
+            .expect("pipeline");
+        let cond = Conditioning {
+            embeds: gaussian_noise([1, 768], 4, &device),
+            latent: gaussian_noise([1, 4, 32, 32], 5, &device),
+        };
+        let options = SampleOptions { steps: 1, guidance: 2.0, eta: 1.0, ..SampleOptions::default() };
+        let noise = pipeline.initial_noise(6, &device);
+        group.bench_function(name, |b| {
+            b.iter(|| {
+                let latents = pipeline.sample_from(noise.clone(), &cond, &options, &mut |_, _| {}).expect("step");
+                latents.into_data().try_to_vec::<f32>().expect("values")
+            })
+        });
+    }
     group.finish();
 }
 

@@ -2,7 +2,7 @@
 //! of the multi-view cross-domain UNet on one object's 12 images (6 views × normal and
 //! colour), the whole UNet trained, for the tiny test checkpoint (`tests/fixtures/wonder3d_tiny`,
 //! 8×8 latents) and the small model's configuration (`configs/small`, 16×16 latents, random
-//! weights), on flex and ndarray. The xtask then times the same step in PyTorch on the CPU
+//! weights), on flex (and ndarray with the `ndarray` feature). The xtask then times the same step in PyTorch on the CPU
 //! (xtask/python/bench_train_torch.py) and records the ratios.
 #![allow(missing_docs)] // criterion_group! generates an undocumented function
 
@@ -64,7 +64,11 @@ fn batch(unet: &UNet, side: usize, device: &Device) -> TrainBatch {
 fn train_step(c: &mut Criterion) {
     let mut group = c.benchmark_group("train_step");
     group.sample_size(10).measurement_time(Duration::from_secs(20)).warm_up_time(Duration::from_secs(2));
-    for (backend, device) in [("flex", w3d_diffusion::default_device()), ("ndarray", w3d_diffusion::ndarray_device())] {
+    #[allow(unused_mut)]
+    let mut devices = vec![("flex", w3d_diffusion::default_device())];
+    #[cfg(feature = "ndarray")]
+    devices.push(("ndarray", w3d_diffusion::ndarray_device()));
+    for (backend, device) in devices {
         for (name, unet, scheduler, side) in models(&device) {
             let batch = batch(&unet, side, &device);
             let options = TrainOptions::for_stage(Stage::MixedDomain).with_warmup_steps(0).with_learning_rate(1e-4);

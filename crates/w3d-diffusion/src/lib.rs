@@ -13,9 +13,10 @@
 //! Configs deserialize the `config.json` files of a diffusers checkpoint directory as they are
 //! (apart from those multi-view defaults);
 //! weights load from f32, f16 or bf16 safetensors and every missing, unexpected or misshaped key
-//! is reported by name. Models run on any Burn device: [`default_device`] is the faster CPU
-//! backend (`flex`); `Device::ndarray()` is the product's CPU test backend; the `wgpu` feature
-//! adds the GPU backend. Convolutions run as im2col + GEMM (see [`nn::ConvAlgorithm`]).
+//! is reported by name. Models run on any Burn device: [`default_device`] is Burn's `flex` CPU
+//! backend; the `wgpu` feature adds the GPU backend, and the `ndarray` feature Burn's older
+//! `ndarray` CPU backend (a second backend for the parity tests:
+//! `CARGO_TARGET_DIR=target/ndarray cargo test --release -p w3d-diffusion --features ndarray`). Convolutions run as im2col + GEMM (see [`nn::ConvAlgorithm`]).
 //!
 //! ```
 //! use w3d_diffusion::{DdimScheduler, SchedulerConfig, classifier_free_guidance, gaussian_noise};
@@ -79,7 +80,9 @@ pub fn gpu_device() -> Option<Device> {
     (kind != burn::tensor::wgpu::wgpu::DeviceType::Cpu).then_some(device)
 }
 
-/// The `ndarray` CPU backend (the product design's test backend; deprecated in Burn 0.22).
+/// Burn's `ndarray` CPU backend (feature `ndarray`; deprecated in Burn 0.22): the second CPU
+/// backend the parity tests and benches run on when the feature is on.
+#[cfg(feature = "ndarray")]
 #[allow(deprecated)]
 pub fn ndarray_device() -> Device {
     Device::ndarray()

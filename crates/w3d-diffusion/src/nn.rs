@@ -129,6 +129,7 @@ impl Conv2d {
                     // im2col's backward scatters each of the k² slices into a zeroed copy of
                     // the input, several times slower.
                     _ if x.is_autodiff() => ConvAlgorithm::Direct,
+                    #[cfg(feature = "ndarray")]
                     DispatchDevice::NdArray(_) => ConvAlgorithm::Im2col,
                     DispatchDevice::Flex(_) if st == 1 && n * c * k * k * out <= IM2COL_MAX_FLOATS => {
                         ConvAlgorithm::Im2col

@@ -7,7 +7,7 @@ mod common;
 #[path = "scheduler_cases/dpm_solver.rs"]
 mod dpm_solver;
 
-use common::{fixture, max_abs_diff, tensor, values};
+use common::{fixture, max_abs_diff, tensor, test_devices, values};
 use w3d_diffusion::{
     DdimInverseScheduler, DdimScheduler, Device, SafetensorsFile, SchedulerConfig, Tensor, UNet,
     classifier_free_guidance, ddim_invert, ddim_sample, gaussian_noise,
@@ -143,35 +143,37 @@ impl Guided {
 
 #[test]
 fn guided_sampling_trajectory_matches_diffusers() {
-    let device = w3d_diffusion::ndarray_device();
-    let model = Guided::load(&device);
-    let mut file = scheduler_file();
-    let expected: Tensor<5> = tensor(&mut file, "cfg_trajectory", &device);
-    let mut latent: Tensor<4> = tensor(&mut file, "cfg_start", &device);
-    let scheduler = DdimScheduler::new(SchedulerConfig::stable_diffusion(), 10).unwrap();
-    for (i, &t) in scheduler.timesteps().iter().enumerate() {
-        let eps = model.eps_guided(latent.clone(), t, 2.0);
-        latent = scheduler.step(eps, t, latent, 0.0, None).unwrap();
-        let step = expected.clone().slice([i..i + 1, 0..1, 0..4, 0..16, 0..16]).reshape([1, 4, 16, 16]);
-        let err = max_abs_diff(latent.clone(), step);
-        assert!(err <= 1e-4, "step {i} (t={t}): {err}");
+    for (name, device) in test_devices() {
+        let model = Guided::load(&device);
+        let mut file = scheduler_file();
+        let expected: Tensor<5> = tensor(&mut file, "cfg_trajectory", &device);
+        let mut latent: Tensor<4> = tensor(&mut file, "cfg_start", &device);
+        let scheduler = DdimScheduler::new(SchedulerConfig::stable_diffusion(), 10).unwrap();
+        for (i, &t) in scheduler.timesteps().iter().enumerate() {
+            let eps = model.eps_guided(latent.clone(), t, 2.0);
+            latent = scheduler.step(eps, t, latent, 0.0, None).unwrap();
+            let step = expected.clone().slice([i..i + 1, 0..1, 0..4, 0..16, 0..16]).reshape([1, 4, 16, 16]);
+            let err = max_abs_diff(latent.clone(), step);
+            assert!(err <= 1e-4, "{name}: step {i} (t={t}): {err}");
+        }
     }
 }
 
 #[test]
 fn inversion_trajectory_matches_diffusers() {
-    let device = w3d_diffusion::ndarray_device();
-    let model = Guided::load(&device);
-    let mut file = scheduler_file();
-    let expected: Tensor<5> = tensor(&mut file, "inversion_trajectory", &device);
-    let mut latent: Tensor<4> = tensor(&mut file, "inversion_start", &device);
-    let inverse = DdimInverseScheduler::new(SchedulerConfig::stable_diffusion(), 10).unwrap();
-    for (i, &t) in inverse.timesteps().iter().enumerate() {
-        let eps = model.eps(latent.clone(), t);
-        latent = inverse.step(eps, t, latent).unwrap();
-        let step = expected.clone().slice([i..i + 1, 0..1, 0..4, 0..16, 0..16]).reshape([1, 4, 16, 16]);
-        let err = max_abs_diff(latent.clone(), step);
-        assert!(err <= 1e-4, "step {i} (t={t}): {err}");
+    for (name, device) in test_devices() {
+        let model = Guided::load(&device);
+        let mut file = scheduler_file();
+        let expected: Tensor<5> = tensor(&mut file, "inversion_trajectory", &device);
+        let mut latent: Tensor<4> = tensor(&mut file, "inversion_start", &device);
+        let inverse = DdimInverseScheduler::new(SchedulerConfig::stable_diffusion(), 10).unwrap();
+        for (i, &t) in inverse.timesteps().iter().enumerate() {
+            let eps = model.eps(latent.clone(), t);
+            latent = inverse.step(eps, t, latent).unwrap();
+            let step = expected.clone().slice([i..i + 1, 0..1, 0..4, 0..16, 0..16]).reshape([1, 4, 16, 16]);
+            let err = max_abs_diff(latent.clone(), step);
+            assert!(err <= 1e-4, "{name}: step {i} (t={t}): {err}");
+        }
     }
 }
 

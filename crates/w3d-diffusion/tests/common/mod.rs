@@ -34,11 +34,13 @@ pub fn max_abs<const D: usize>(a: Tensor<D>) -> f32 {
     values(a).iter().fold(0.0f32, |m, v| m.max(v.abs()))
 }
 
-/// The backends every parity test runs on: ndarray (the product's test backend), flex (the
-/// default) and, with the `wgpu` feature on a host with a hardware GPU, wgpu.
+/// The backends every parity test runs on: flex (the default), with the `ndarray` feature
+/// Burn's ndarray backend, and with the `wgpu` feature on a host with a hardware GPU, wgpu.
 pub fn test_devices() -> Vec<(&'static str, Device)> {
     #[allow(unused_mut)]
-    let mut devices = vec![("ndarray", w3d_diffusion::ndarray_device()), ("flex", w3d_diffusion::default_device())];
+    let mut devices = vec![("flex", w3d_diffusion::default_device())];
+    #[cfg(feature = "ndarray")]
+    devices.push(("ndarray", w3d_diffusion::ndarray_device()));
     #[cfg(feature = "wgpu")]
     if let Some(gpu) = w3d_diffusion::gpu_device() {
         devices.push(("wgpu", gpu));

@@ -1,7 +1,7 @@
 //! The real-size Wonder3D base configs parse; the real-size models instantiate and run one
 //! forward within 8 GiB peak memory, and one guided denoising step of the real-size
 //! multi-view UNet (12 images at 32×32 latents, 24 UNet images with guidance) is timed with its
-//! peak memory on ndarray and flex (ignored by default: slow; run with
+//! peak memory on each test backend (ignored by default: slow; run with
 //! `cargo test --release -p w3d-diffusion --test parity full_size:: -- --ignored --nocapture --test-threads 1`).
 
 use std::path::PathBuf;
@@ -12,6 +12,8 @@ use w3d_diffusion::{
     ClipVision, ClipVisionConfig, Conditioning, DdimScheduler, MultiViewPipeline, SampleOptions, SchedulerConfig,
     Tensor, UNet, UNetConfig, Vae, VaeConfig, gaussian_noise,
 };
+
+use crate::common::test_devices;
 
 fn config(path: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs").join("wonder3d").join(path)
@@ -91,7 +93,7 @@ fn reset_peak_rss() {
 #[ignore = "slow: real-size multi-view UNet (~0.9 G parameters), one guided step per backend"]
 fn real_size_multiview_guided_step() {
     let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
-    for (name, device) in [("ndarray", w3d_diffusion::ndarray_device()), ("flex", w3d_diffusion::default_device())] {
+    for (name, device) in test_devices() {
         let t = Instant::now();
         let unet = UNet::random(&UNetConfig::from_file(config("unet_mv/config.json")).unwrap(), 1, &device).unwrap();
         let params = unet.num_params();

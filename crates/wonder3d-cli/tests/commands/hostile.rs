@@ -80,6 +80,68 @@ fn sizes_that_cannot_fit_in_memory_are_refused_by_the_parser() {
     assert!(err.contains("padding"), "{err}");
 }
 
+/// Every numeric option's parser, through the binary: in-range values pass it (the command
+/// then fails on its missing input, exit code 1), out-of-range, negative, non-finite and
+/// malformed values are refused with the option's range (clap's exit code 2).
+#[test]
+fn numeric_options_accept_their_range_and_refuse_the_rest() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = s(&dir.path().join("missing.obj")).to_string();
+    let out = s(&dir.path().join("out")).to_string();
+    let glb = s(&dir.path().join("out.glb")).to_string();
+    let m = missing.as_str();
+    let command = |option: &str| -> Vec<&str> {
+        match option {
+            "--seed" | "--samples" => vec!["eval", m, m],
+            "--size" => vec!["render", m, "--out", &out],
+            "--steps" | "--guidance" | "--eta" => vec!["generate", m, "--weights", m, "--out", &out],
+            _ => vec!["texture", m, m, "--out", &glb],
+        }
+    };
+    let accepted = [
+        ("--seed", "0"),
+        ("--seed", "18446744073709551615"),
+        ("--samples", "20000"),
+        ("--size", "4096"),
+        ("--steps", "50"),
+        ("--guidance", "2"),
+        ("--guidance", "1e1"),
+        ("--eta", "0"),
+        ("--padding", "0"),
+        ("--exponent", "4"),
+    ];
+    for (option, value) in accepted {
+        let mut args = command(option);
+        args.extend([option, value]);
+        let run = wonder3d(&args);
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert_eq!(run.status.code(), Some(1), "{args:?}: {err}");
+        assert!(err.contains("missing.obj"), "{args:?}: {err}");
+    }
+    let refused: [(&str, &[&str], &str); 9] = [
+        ("--seed", &["-1", "18446744073709551616", "1.5", "", "x"], "from 0 to 18446744073709551615"),
+        ("--size", &["16384", "0", "-3"], "from 1 to 4096 pixels"),
+        ("--samples", &["100000000000", "0"], "from 1 to 10000000 surface samples"),
+        ("--steps", &["0", "-5", "1001"], "from 1 to 1000 steps"),
+        ("--guidance", &["NaN", "nan", "inf", "-inf", "-1", "1e30", "two"], "a guidance scale from 0 to 100"),
+        ("--eta", &["1.5", "NaN"], "an eta from 0 to 1"),
+        ("--exponent", &["inf", "-2"], "an exponent from 0 to 64"),
+        ("--padding", &["-1", "1025"], "from 0 to 1024 texels"),
+        ("--dilation", &["0.5"], "from 0 to 1024 texels"),
+    ];
+    for (option, values, range) in refused {
+        for value in values {
+            let mut args = command(option);
+            args.extend([option, value]);
+            let err = fails_within(5, &args);
+            assert!(err.contains(option) && err.contains(range) && !err.contains("tip"), "{args:?}: {err}");
+        }
+    }
+    let err = fails_within(5, &["texture", m, m, "--out", &glb, "--size", "7"]);
+    assert!(err.contains("from 8 to 8192 texels"), "{err}");
+    assert!(!dir.path().join("out").exists() && !dir.path().join("out.glb").exists());
+}
+
 #[test]
 fn negative_and_non_finite_numbers_get_a_range_error() {
     let torus = asset("torus.obj");
