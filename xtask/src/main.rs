@@ -10,6 +10,9 @@
 //!   the reconstruction accuracy harness (oracle views of `../shared/data/meshes`), writing
 //!   `target/bench/recon.json` and, on a full run, `docs/accuracy.md`.
 //! - `cargo xtask chart`: `docs/speed_accuracy.svg` from `target/bench/recon.json`.
+//! - `cargo xtask refine-table [--meshes a,b] [--size 512]`: the refinement loop with the
+//!   oracle and identity enhancers on noisy oracle views, `target/bench/refine.json` and the
+//!   refinement table of `docs/accuracy.md`.
 //! - `cargo xtask build-parity`: fails if a dependency of the README's demo build would be
 //!   compiled again, with other features, by the test command.
 //! - `cargo xtask package [--verify]`: `cargo package` of every publishable crate in
@@ -53,6 +56,7 @@ use clap::{Parser, Subcommand};
 mod chart;
 mod eval_small;
 mod recon;
+mod refine_table;
 mod robust;
 mod train_small;
 
@@ -112,6 +116,16 @@ enum Task {
         /// uses the condition (x₀ error with its own, another's and no condition).
         #[arg(long)]
         data: Option<PathBuf>,
+    },
+    /// The refinement loop with the oracle and identity enhancers on noisy 128² oracle views
+    /// (five objects, both rigs): target/bench/refine.json and the table of docs/accuracy.md.
+    RefineTable {
+        /// Only these objects (comma-separated: spot, armadillo, koala, horse, plane).
+        #[arg(long)]
+        meshes: Option<String>,
+        /// Side of the enhanced views in pixels.
+        #[arg(long, default_value_t = 512)]
+        size: u32,
     },
     /// Regenerate committed test fixtures with the Python peer tools.
     Fixtures {
@@ -584,6 +598,7 @@ fn main() -> ExitCode {
         Task::EvalSmall { model, out, steps, data } => eval_small::run(&model, &out, steps, data.as_deref()),
         Task::ShipSmall { model } => train_small::ship(&model),
         Task::Bench { suite, criterion_args } => bench(&suite, &criterion_args),
+        Task::RefineTable { meshes, size } => refine_table::run(meshes.as_deref(), size),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -192,38 +192,14 @@ pub(crate) fn score_scaled(
     Ok(Run { name: name.into(), case: case.into(), rig: rig_name.into(), preset, value })
 }
 
-/// `views` with deterministic Gaussian noise (σ) added to the normal maps inside the masks,
-/// renormalised.
+/// [`wonder3d::eval::with_normal_noise`] with the xtask's string errors.
 pub(crate) fn with_normal_noise(views: ViewSet, sigma: f32, seed: u64) -> Result<ViewSet, String> {
-    let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
-    let mut uniform = move || {
-        state ^= state << 13;
-        state ^= state >> 7;
-        state ^= state << 17;
-        ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
-    };
-    let mut gauss = move || {
-        let (u, v) = (uniform(), uniform());
-        ((-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()) as f32
-    };
-    let (rig, mut images) = views.into_parts();
-    for view in &mut images {
-        let mask = view.mask.data().to_vec();
-        for (n, m) in view.normal.data_mut().chunks_exact_mut(3).zip(mask) {
-            if m < 0.5 {
-                continue;
-            }
-            let v = glam::Vec3::new(n[0] + sigma * gauss(), n[1] + sigma * gauss(), n[2] + sigma * gauss());
-            let v = v.normalize_or(glam::Vec3::Z);
-            n.copy_from_slice(&v.to_array());
-        }
-    }
-    ViewSet::new(rig, images).map_err(|e| e.to_string())
+    wonder3d::eval::with_normal_noise(views, sigma, seed).map_err(|e| e.to_string())
 }
 
 /// Mean PSNR and SSIM over the 16 SyncDreamer views of `ours` against `truth`, both rendered
 /// with their masks and composited over white (the NVS protocol of `eval_nvs.py`).
-fn novel_view_fidelity(truth: &Mesh, ours: &Mesh, size: u32) -> Result<(f64, f64), String> {
+pub(crate) fn novel_view_fidelity(truth: &Mesh, ours: &Mesh, size: u32) -> Result<(f64, f64), String> {
     use wonder3d::eval::{composite_over_white, psnr, ssim};
     let rig = ViewRig::syncdreamer16();
     let render = |mesh: &Mesh| -> Result<Vec<wonder3d::Image>, String> {

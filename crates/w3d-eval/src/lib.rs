@@ -11,7 +11,8 @@
 //! SyncDreamer's own Chamfer variant, on the surface seen by its 16 depth views only, is
 //! [`visible_surface_chamfer`]; [`align_icp_scale`] fits a similarity (ICP with scale) as a
 //! diagnostic of how much of an error is pose and scale. Generated views are scored against
-//! the true ones with [`view_agreement`] (normal angle inside the true mask, mask IoU).
+//! the true ones with [`view_agreement`] (normal angle inside the true mask, mask IoU), and
+//! [`with_normal_noise`] perturbs views for robustness measurements.
 //!
 //! ```
 //! use w3d_core::Mesh;
@@ -36,6 +37,7 @@
 mod distance;
 mod icp;
 mod image_metrics;
+mod perturb;
 mod sampling;
 mod views;
 mod visible;
@@ -45,6 +47,7 @@ mod winding;
 pub use distance::{FScore, SurfaceComparison};
 pub use icp::{IcpOptions, Similarity, align_icp_scale};
 pub use image_metrics::{composite_over_white, psnr, ssim};
+pub use perturb::with_normal_noise;
 pub use sampling::{MAX_SAMPLES, SurfaceSamples, sample_surface};
 pub use views::{ViewAgreement, view_agreement};
 pub use visible::{VisibleChamfer, VisibleOptions, visible_points, visible_surface_chamfer, voxel_down_sample};

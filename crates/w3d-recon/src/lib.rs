@@ -18,6 +18,9 @@
 //! 4. [`polish`]: the coarse loss again on the vertices untangling moved, at fixed
 //!    topology, with every move that would make triangles cross undone.
 //!
+//! [`refine_mesh`] is the refinement stage that follows: the same fit, from the finished
+//! mesh, against sharper views (Wonder3D++'s enhanced 512² views), with the same clean-up.
+//!
 //! Frames and units follow `w3d-core`: the canonical y-up world frame of the rig, lengths in
 //! unit-cube units. Accuracy and speed per preset are in `docs/accuracy.md`.
 //!
@@ -46,6 +49,7 @@ mod integrate;
 mod normals;
 mod pipeline;
 mod polish;
+mod refine;
 mod untangle;
 
 pub use coarse::{CoarseOptions, CoarseReport, reconstruct_coarse, silhouette_sphere, view_loss};
@@ -56,6 +60,7 @@ pub use pipeline::{
 };
 
 pub use polish::{PolishReport, polish};
+pub use refine::{RefineOptions, RefineReport, refine_mesh};
 pub use untangle::{UntangleReport, untangle, untangle_positions};
 
 pub use integrate::{IntegrateOptions, integrate_normals, integrate_normals_anchored};

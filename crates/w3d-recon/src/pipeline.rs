@@ -403,15 +403,15 @@ fn settled_loss(report: &CoarseReport) -> f32 {
 
 /// Rings of neighbours around the vertices [`untangle`](fn@crate::untangle) moved that [`polish`] may move too.
 /// Measured (orthographic, rocker arm, 60 steps): 2 rings CD 0.0075, 4 rings 0.0076.
-const POLISH_RINGS: usize = 2;
+pub(crate) const POLISH_RINGS: usize = 2;
 
 /// `true` for each vertex whose position differs between `a` and `b` (same topology).
-fn moved_vertices(a: &Mesh, b: &Mesh) -> Vec<bool> {
+pub(crate) fn moved_vertices(a: &Mesh, b: &Mesh) -> Vec<bool> {
     a.positions().iter().zip(b.positions()).map(|(p, q)| p != q).collect()
 }
 
 /// `flags` grown by `rings` rings of triangle neighbours in `mesh`.
-fn grow_rings(mesh: &Mesh, mut flags: Vec<bool>, rings: usize) -> Vec<bool> {
+pub(crate) fn grow_rings(mesh: &Mesh, mut flags: Vec<bool>, rings: usize) -> Vec<bool> {
     for _ in 0..rings {
         let mut grown = flags.clone();
         for t in mesh.triangles() {

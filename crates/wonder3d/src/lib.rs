@@ -49,6 +49,7 @@ pub mod demo;
 mod generate;
 mod input;
 mod pipeline;
+pub mod refine;
 pub mod sheet;
 
 #[cfg(feature = "diffusion")]

@@ -1,0 +1,341 @@
+//! Iterative refinement (Wonder3D++'s third stage): *enhance four views → refine the mesh →
+//! refine the texture*, `iterations` times, after the coarse mesh.
+//!
+//! Each iteration renders the current textured mesh through four cameras of the views' rig
+//! (front, right, back, left) at [`RefineOptions::size`], asks an [`Enhancer`] for sharper
+//! views of the same cameras, fits the mesh to their normals
+//! ([`w3d_recon::refine_mesh`]), bakes the refined mesh's texture from the original views and
+//! projects the enhanced colours into it ([`w3d_texture::refine_texture`]).
+//!
+//! The enhancer is a trait so that the loop does not depend on a diffusion model:
+//! [`IdentityEnhancer`] returns the renders it is given (the loop then only re-fits the mesh
+//! to itself at a finer resolution), and [`OracleEnhancer`] returns renders of a known mesh
+//! (the best any enhancer could do, for tests and measurements).
+//!
+//! ```
+//! use wonder3d::refine::{OracleEnhancer, RefineOptions, refine};
+//! use wonder3d::{Pipeline, Preset, ViewRig};
+//!
+//! let spot = wonder3d::demo::bundled_spot()?;
+//! let views = wonder3d::raster::render_oracle_views(&spot, &ViewRig::wonder3d_ortho(), 64)?;
+//! let coarse = Pipeline::new().with_preset(Preset::Fast).without_texture().from_views(&views, &mut |_| {})?;
+//! // One iteration against sharper views of spot itself, small and short for the example.
+//! let options = RefineOptions::default()
+//!     .with_iterations(1)
+//!     .with_size(128)
+//!     .with_mesh(wonder3d::recon::RefineOptions::default().with_steps(20).with_edge_len_lims((0.02, 0.04)))
+//!     .with_texture(wonder3d::TextureOptions::default().with_size(256));
+//! let refined = refine(&coarse.geometry, &views, &OracleEnhancer::new(spot), &options, &mut |_| {})?;
+//! assert!(refined.mesh.texture().is_some() && refined.geometry.topology().is_watertight());
+//! assert_eq!(refined.report.iterations.len(), 1);
+//! # Ok::<(), wonder3d::Error>(())
+//! ```
+
+use std::time::Instant;
+
+use serde::Serialize;
+
+use w3d_core::{Error, Mesh, Result, ViewRig, ViewSet};
+use w3d_recon::RefineReport as MeshRefineReport;
+use w3d_texture::{BakeReport, RefineTextureOptions, RefineTextureReport, TextureOptions};
+
+/// The four cameras of a refinement iteration, by their rig names: the reference's
+/// front, right, back and left.
+pub const REFINE_VIEWS: [&str; 4] = ["front", "right", "back", "left"];
+
+/// What an [`Enhancer`] is given in one refinement iteration.
+#[derive(Debug, Clone, Copy)]
+#[non_exhaustive]
+pub struct EnhanceRequest<'a> {
+    /// The iteration, from 0.
+    pub iteration: usize,
+    /// Renders of the current textured mesh (smooth world-space normals, colours, masks)
+    /// through the refinement cameras at the refinement size: the images to enhance.
+    pub renders: &'a ViewSet,
+    /// The views the mesh was reconstructed from (for a diffusion enhancer: its generated
+    /// low-resolution views, which the reference uses as init and control images).
+    pub views: &'a ViewSet,
+}
+
+/// Sharper views of the refinement cameras: views in, enhanced views out.
+///
+/// The result must have the request's rig (the same view names, in order) and image size,
+/// with normals (world space, unit length), masks and colours.
+pub trait Enhancer {
+    /// A short name for reports (`identity`, `oracle`, …).
+    fn name(&self) -> String;
+
+    /// The enhanced views for `request`.
+    fn enhance(&self, request: &EnhanceRequest<'_>) -> Result<ViewSet>;
+}
+
+/// The enhancer that changes nothing: it returns the renders it is given.
+#[derive(Debug, Clone, Copy, Default)]
+pub struct IdentityEnhancer;
+
+impl Enhancer for IdentityEnhancer {
+    fn name(&self) -> String {
+        "identity".into()
+    }
+
+    fn enhance(&self, request: &EnhanceRequest<'_>) -> Result<ViewSet> {
+        Ok(request.renders.clone())
+    }
+}
+
+/// The enhancer that knows the answer: renders of a given mesh (in the rig's world frame,
+/// with its colours or texture) through the requested cameras — what a perfect enhancer
+/// would return.
+#[derive(Debug, Clone)]
+pub struct OracleEnhancer {
+    mesh: Mesh,
+}
+
+impl OracleEnhancer {
+    /// An oracle showing `mesh` (already framed like the views, e.g. normalised to the unit
+    /// cube for the canonical rigs).
+    pub fn new(mesh: Mesh) -> Self {
+        OracleEnhancer { mesh }
+    }
+}
+
+impl Enhancer for OracleEnhancer {
+    fn name(&self) -> String {
+        "oracle".into()
+    }
+
+    fn enhance(&self, request: &EnhanceRequest<'_>) -> Result<ViewSet> {
+        w3d_raster::render_oracle_views(&self.mesh, request.renders.rig(), request.renders.width())
+    }
+}
+
+/// Options of [`refine`].
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub struct RefineOptions {
+    /// Refinement iterations (the reference runs 2); 0 returns the input mesh textured as
+    /// the pipeline would.
+    pub iterations: usize,
+    /// Side of the square renders and enhanced views in pixels (the reference: 512).
+    pub size: u32,
+    /// The mesh refinement of each iteration.
+    pub mesh: w3d_recon::RefineOptions,
+    /// The texture bake of each refined mesh (from the original views).
+    pub texture: TextureOptions,
+    /// The projection of the enhanced colours into the baked texture.
+    pub texture_refinement: RefineTextureOptions,
+}
+
+impl Default for RefineOptions {
+    fn default() -> Self {
+        RefineOptions {
+            iterations: 2,
+            size: 512,
+            mesh: w3d_recon::RefineOptions::default(),
+            texture: TextureOptions::default(),
+            texture_refinement: RefineTextureOptions::default(),
+        }
+    }
+}
+
+/// Chainable setters, one per field (the struct is `#[non_exhaustive]`).
+impl RefineOptions {
+    /// These options with [`iterations`](Self::iterations) set to `value`.
+    #[must_use]
+    pub fn with_iterations(mut self, value: usize) -> Self {
+        self.iterations = value;
+        self
+    }
+
+    /// These options with [`size`](Self::size) set to `value`.
+    #[must_use]
+    pub fn with_size(mut self, value: u32) -> Self {
+        self.size = value;
+        self
+    }
+
+    /// These options with [`mesh`](Self::mesh) set to `value`.
+    #[must_use]
+    pub fn with_mesh(mut self, value: w3d_recon::RefineOptions) -> Self {
+        self.mesh = value;
+        self
+    }
+
+    /// These options with [`texture`](Self::texture) set to `value`.
+    #[must_use]
+    pub fn with_texture(mut self, value: TextureOptions) -> Self {
+        self.texture = value;
+        self
+    }
+
+    /// These options with [`texture_refinement`](Self::texture_refinement) set to `value`.
+    #[must_use]
+    pub fn with_texture_refinement(mut self, value: RefineTextureOptions) -> Self {
+        self.texture_refinement = value;
+        self
+    }
+}
+
+/// One iteration of [`refine`].
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[non_exhaustive]
+pub struct IterationReport {
+    /// The mesh refinement.
+    pub mesh: MeshRefineReport,
+    /// The bake of the refined mesh from the original views.
+    pub bake: BakeReport,
+    /// The projection of the enhanced colours.
+    pub texture: RefineTextureReport,
+    /// Seconds the enhancer took.
+    pub enhance_seconds: f64,
+    /// Seconds of the whole iteration.
+    pub seconds: f64,
+}
+
+/// What [`refine`] did.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+#[non_exhaustive]
+pub struct RefineReport {
+    /// The enhancer's [`Enhancer::name`].
+    pub enhancer: String,
+    /// One report per iteration.
+    pub iterations: Vec<IterationReport>,
+    /// Triangles of the refined mesh.
+    pub triangles: usize,
+    /// Wall-clock seconds of the whole refinement.
+    pub seconds: f64,
+}
+
+/// A refinement event: iteration `iteration` (from 0) of `iterations` reached `step`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
+pub struct RefineProgress {
+    /// The iteration, from 0.
+    pub iteration: usize,
+    /// Iterations in all.
+    pub iterations: usize,
+    /// What the iteration is doing.
+    pub step: RefineStep,
+}
+
+/// The parts of one refinement iteration, in order.
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
+pub enum RefineStep {
+    /// Rendering the current mesh and running the enhancer.
+    Enhancing,
+    /// Fitting the mesh: `done` of `total` steps, with the loss before the step.
+    Fitting {
+        /// Steps done.
+        done: usize,
+        /// Steps in all.
+        total: usize,
+        /// Loss before the step.
+        loss: f32,
+    },
+    /// Baking and refining the texture.
+    Texturing,
+}
+
+/// The result of [`refine`].
+#[derive(Debug, Clone, PartialEq)]
+#[non_exhaustive]
+pub struct Refined {
+    /// The refined closed mesh (no attributes), in the views' world frame.
+    pub geometry: Mesh,
+    /// The refined mesh textured: uvs, baked and refined sRGB texture.
+    pub mesh: Mesh,
+    /// Measurements.
+    pub report: RefineReport,
+}
+
+/// The rig of the refinement cameras ([`REFINE_VIEWS`]) taken from `rig`.
+pub fn refinement_rig(rig: &ViewRig) -> Result<ViewRig> {
+    let views = REFINE_VIEWS
+        .iter()
+        .map(|name| {
+            rig.views.iter().find(|v| v.name == *name).cloned().ok_or_else(|| {
+                let known: Vec<&str> = rig.views.iter().map(|v| v.name.as_str()).collect();
+                Error::invalid(
+                    "views",
+                    format!("a rig with the refinement views {REFINE_VIEWS:?}, got {} with {known:?}", rig.name),
+                )
+            })
+        })
+        .collect::<Result<Vec<_>>>()?;
+    Ok(ViewRig { name: rig.name.clone(), views })
+}
+
+/// Refines `geometry` (the closed mesh reconstructed from `views`, e.g.
+/// [`crate::Output::geometry`]) with `enhancer`, [`RefineOptions::iterations`] times, and
+/// textures the result (see the module documentation). `views` must carry colours and a rig
+/// with the [`REFINE_VIEWS`]. `progress` receives [`RefineProgress`] events.
+pub fn refine(
+    geometry: &Mesh,
+    views: &ViewSet,
+    enhancer: &dyn Enhancer,
+    options: &RefineOptions,
+    progress: &mut dyn FnMut(RefineProgress),
+) -> Result<Refined> {
+    let start = Instant::now();
+    options.texture.validate()?;
+    if options.size < 16 {
+        return Err(Error::invalid("size", format!("at least 16 pixels, got {}", options.size)));
+    }
+    let rig = refinement_rig(views.rig())?;
+    let mut geometry = geometry.clone().without_attributes();
+    let mut textured = w3d_texture::bake(&geometry, views, &options.texture)?.mesh;
+    let mut iterations = Vec::new();
+    let total = options.iterations;
+    for iteration in 0..total {
+        let t = Instant::now();
+        let event = |step| RefineProgress { iteration, iterations: total, step };
+        progress(event(RefineStep::Enhancing));
+        let renders = w3d_raster::render_oracle_views(&textured, &rig, options.size)?;
+        let enhanced = enhancer.enhance(&EnhanceRequest { iteration, renders: &renders, views })?;
+        check_enhanced(&enhanced, &rig, options.size, &enhancer.name())?;
+        let enhance_seconds = t.elapsed().as_secs_f64();
+        let (refined, mesh_report) =
+            w3d_recon::refine_mesh(&enhanced, &geometry, &options.mesh, &mut |done, n, loss| {
+                progress(event(RefineStep::Fitting { done, total: n, loss }))
+            })?;
+        progress(event(RefineStep::Texturing));
+        let baked = w3d_texture::bake(&refined, views, &options.texture)?;
+        let (mesh, texture_report) = w3d_texture::refine_texture(&baked.mesh, &enhanced, &options.texture_refinement)?;
+        iterations.push(IterationReport {
+            mesh: mesh_report,
+            bake: baked.report,
+            texture: texture_report,
+            enhance_seconds,
+            seconds: t.elapsed().as_secs_f64(),
+        });
+        (geometry, textured) = (refined, mesh);
+    }
+    let report = RefineReport {
+        enhancer: enhancer.name(),
+        iterations,
+        triangles: geometry.triangle_count(),
+        seconds: start.elapsed().as_secs_f64(),
+    };
+    Ok(Refined { geometry, mesh: textured, report })
+}
+
+/// Fails unless `enhanced` shows `rig`'s views, in order, at `size × size`, with colours.
+fn check_enhanced(enhanced: &ViewSet, rig: &ViewRig, size: u32, enhancer: &str) -> Result<()> {
+    let names: Vec<&str> = enhanced.rig().views.iter().map(|v| v.name.as_str()).collect();
+    let expected: Vec<&str> = rig.views.iter().map(|v| v.name.as_str()).collect();
+    let what = format!("the views of enhancer {enhancer}");
+    if names != expected {
+        return Err(Error::invalid(what, format!("the views {expected:?}, got {names:?}")));
+    }
+    if (enhanced.width(), enhanced.height()) != (size, size) {
+        return Err(Error::invalid(
+            what,
+            format!("{size}×{size} images, got {}×{}", enhanced.width(), enhanced.height()),
+        ));
+    }
+    if let Some((rv, _)) = enhanced.iter().find(|(_, v)| v.colour.is_none()) {
+        return Err(Error::invalid(what, format!("a colour image for every view, {} has none", rv.name)));
+    }
+    Ok(())
+}

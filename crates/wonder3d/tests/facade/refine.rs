@@ -1,0 +1,102 @@
+//! The refinement loop on spot: a coarse mesh reconstructed from noisy 128² oracle views
+//! (normal noise σ = 0.05, so there is something to refine), refined once at 256² with the
+//! oracle enhancer (renders of spot itself: geometry and novel-view texture must improve) and
+//! with the identity enhancer (the loop must not make the mesh worse). The full table (five
+//! objects, both rigs, two iterations at 512²) is `cargo xtask refine-table`
+//! (`docs/accuracy.md`).
+
+use wonder3d::eval::{EvalOptions, composite_over_white, evaluate, psnr, with_normal_noise};
+use wonder3d::recon::RefineOptions as MeshRefineOptions;
+use wonder3d::refine::{IdentityEnhancer, OracleEnhancer, RefineOptions, refine};
+use wonder3d::{Mesh, Pipeline, ViewRig, ViewSet};
+
+/// Spot, its noisy 128² views and the coarse mesh (default preset) reconstructed from them.
+fn coarse() -> (Mesh, ViewSet, Mesh, Mesh) {
+    let spot = wonder3d::demo::bundled_spot().unwrap();
+    let clean = wonder3d::raster::render_oracle_views(&spot, &ViewRig::wonder3d_ortho(), 128).unwrap();
+    let views = with_normal_noise(clean, 0.05, 7).unwrap();
+    let output = Pipeline::new().with_texture_size(512).from_views(&views, &mut |_| {}).unwrap();
+    (spot, views, output.geometry, output.mesh)
+}
+
+fn options() -> RefineOptions {
+    RefineOptions::default()
+        .with_iterations(1)
+        .with_size(256)
+        .with_mesh(MeshRefineOptions::default().with_steps(60).with_edge_len_lims((0.012, 0.02)))
+        .with_texture(wonder3d::TextureOptions::default().with_size(512))
+}
+
+fn chamfer(mesh: &Mesh, truth: &Mesh) -> f64 {
+    evaluate(mesh, truth, &EvalOptions::default()).unwrap().chamfer
+}
+
+/// Mean PSNR over the 16 SyncDreamer views at 128², composited over white.
+fn novel_psnr(mesh: &Mesh, truth: &Mesh) -> f64 {
+    let rig = ViewRig::syncdreamer16();
+    let render = |m: &Mesh| wonder3d::raster::render_oracle_views(m, &rig, 128).unwrap();
+    let (a, b) = (render(mesh), render(truth));
+    let over_white = |v: &wonder3d::ViewImages| {
+        composite_over_white(&v.colour.as_ref().unwrap().with_alpha(&v.mask).unwrap()).unwrap()
+    };
+    let psnrs: Vec<f64> =
+        a.views().iter().zip(b.views()).map(|(x, y)| psnr(&over_white(x), &over_white(y)).unwrap()).collect();
+    psnrs.iter().sum::<f64>() / psnrs.len() as f64
+}
+
+#[test]
+fn the_oracle_enhancer_sharpens_geometry_and_texture_and_identity_does_no_harm() {
+    let (spot, views, geometry, textured) = coarse();
+    let (cd_before, psnr_before) = (chamfer(&geometry, &spot), novel_psnr(&textured, &spot));
+
+    let oracle = refine(&geometry, &views, &OracleEnhancer::new(spot.clone()), &options(), &mut |_| {}).unwrap();
+    let (cd, psnr) = (chamfer(&oracle.geometry, &spot), novel_psnr(&oracle.mesh, &spot));
+    let report = &oracle.report.iterations[0];
+    eprintln!(
+        "coarse: CD {cd_before:.5}, PSNR {psnr_before:.2} dB, {} triangles\noracle, 1 iteration: CD {cd:.5}, PSNR \
+         {psnr:.2} dB, {} triangles, {:.1} s (fit {:.1} s)",
+        geometry.triangle_count(),
+        oracle.report.triangles,
+        report.seconds,
+        report.mesh.fit.seconds
+    );
+    assert!(oracle.geometry.topology().is_watertight() && oracle.geometry.self_intersections().is_empty());
+    assert!(cd < 0.9 * cd_before, "oracle refinement: CD {cd_before:.5} -> {cd:.5}");
+    assert!(psnr > psnr_before + 0.5, "oracle refinement: PSNR {psnr_before:.2} -> {psnr:.2} dB");
+
+    let identity = refine(&geometry, &views, &IdentityEnhancer, &options(), &mut |_| {}).unwrap();
+    let cd_identity = chamfer(&identity.geometry, &spot);
+    eprintln!("identity, 1 iteration: CD {cd_identity:.5}");
+    assert!(identity.geometry.topology().is_watertight() && identity.geometry.self_intersections().is_empty());
+    assert!(cd_identity <= 1.05 * cd_before, "identity refinement: CD {cd_before:.5} -> {cd_identity:.5}");
+    assert_eq!(identity.report.enhancer, "identity");
+}
+
+#[test]
+fn no_iterations_keep_the_mesh_and_a_wrong_enhancer_is_named() {
+    let spot = wonder3d::demo::bundled_spot().unwrap();
+    let views = wonder3d::raster::render_oracle_views(&spot, &ViewRig::wonder3d_ortho(), 64).unwrap();
+    let geometry = spot.clone().without_attributes();
+    let none = refine(&geometry, &views, &IdentityEnhancer, &options().with_iterations(0), &mut |_| {}).unwrap();
+    assert_eq!(none.geometry, geometry);
+    assert!(none.report.iterations.is_empty() && none.mesh.texture().is_some());
+
+    /// Returns its renders at half the size.
+    struct Shrinking;
+    impl wonder3d::refine::Enhancer for Shrinking {
+        fn name(&self) -> String {
+            "shrinking".into()
+        }
+        fn enhance(&self, request: &wonder3d::refine::EnhanceRequest<'_>) -> wonder3d::Result<ViewSet> {
+            let spot = wonder3d::demo::bundled_spot()?;
+            wonder3d::raster::render_oracle_views(&spot, request.renders.rig(), request.renders.width() / 2)
+        }
+    }
+    let err = refine(&geometry, &views, &Shrinking, &options(), &mut |_| {}).unwrap_err().to_string();
+    assert!(err.contains("enhancer shrinking") && err.contains("256×256") && err.contains("128×128"), "{err}");
+
+    // Views without the refinement cameras.
+    let three = views.subset(["front", "front_right", "back"]).unwrap();
+    let err = refine(&geometry, &three, &IdentityEnhancer, &options(), &mut |_| {}).unwrap_err().to_string();
+    assert!(err.contains("refinement views") && err.contains("\"right\""), "{err}");
+}
