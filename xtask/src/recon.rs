@@ -197,30 +197,10 @@ pub(crate) fn with_normal_noise(views: ViewSet, sigma: f32, seed: u64) -> Result
     wonder3d::eval::with_normal_noise(views, sigma, seed).map_err(|e| e.to_string())
 }
 
-/// Mean PSNR and SSIM over the 16 SyncDreamer views of `ours` against `truth`, both rendered
-/// with their masks and composited over white (the NVS protocol of `eval_nvs.py`).
+/// [`wonder3d::eval::novel_view_fidelity`] as (mean PSNR, mean SSIM), with the xtask's string errors.
 pub(crate) fn novel_view_fidelity(truth: &Mesh, ours: &Mesh, size: u32) -> Result<(f64, f64), String> {
-    use wonder3d::eval::{composite_over_white, psnr, ssim};
-    let rig = ViewRig::syncdreamer16();
-    let render = |mesh: &Mesh| -> Result<Vec<wonder3d::Image>, String> {
-        let views = render_oracle_views(mesh, &rig, size).map_err(|e| e.to_string())?;
-        views
-            .views()
-            .iter()
-            .map(|v| {
-                let colour = v.colour.as_ref().ok_or("no colour view")?;
-                let image = colour.with_alpha(&v.mask).map_err(|e| e.to_string())?;
-                composite_over_white(&image).map_err(|e| e.to_string())
-            })
-            .collect()
-    };
-    let (a, b) = (render(truth)?, render(ours)?);
-    let (mut p, mut q) = (0.0, 0.0);
-    for (x, y) in a.iter().zip(&b) {
-        p += psnr(x, y).map_err(|e| e.to_string())?;
-        q += ssim(x, y).map_err(|e| e.to_string())?;
-    }
-    Ok((p / a.len() as f64, q / a.len() as f64))
+    let f = wonder3d::eval::novel_view_fidelity(truth, ours, size).map_err(|e| e.to_string())?;
+    Ok((f.psnr, f.ssim))
 }
 
 /// Texture fidelity in novel views: spot and bob (textured assets) reconstructed from their

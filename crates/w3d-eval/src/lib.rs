@@ -46,7 +46,7 @@ mod winding;
 
 pub use distance::{FScore, SurfaceComparison};
 pub use icp::{IcpOptions, Similarity, align_icp_scale};
-pub use image_metrics::{composite_over_white, psnr, ssim};
+pub use image_metrics::{NovelViewFidelity, composite_over_white, novel_view_fidelity, psnr, ssim};
 pub use perturb::with_normal_noise;
 pub use sampling::{MAX_SAMPLES, SurfaceSamples, sample_surface};
 pub use views::{ViewAgreement, view_agreement};

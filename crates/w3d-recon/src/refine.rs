@@ -38,8 +38,8 @@ use std::time::Instant;
 use w3d_core::{Mesh, Result, ViewSet};
 
 use crate::coarse::{CoarseOptions, CoarseReport, reconstruct_coarse};
-use crate::pipeline::{grow_rings, moved_vertices};
-use crate::polish::{PolishReport, polish};
+use crate::pipeline::polish_moved;
+use crate::polish::PolishReport;
 use crate::untangle::{UntangleReport, untangle};
 
 /// Options of [`refine_mesh`]. Lengths are in world (unit-cube) units.
@@ -200,8 +200,7 @@ pub fn refine_mesh(
     let fit_options = options.fit();
     let (fitted, fit) = reconstruct_coarse(views, mesh, &fit_options, progress)?;
     let (untangled, untangle_report) = untangle(&fitted, options.untangle_rounds)?;
-    let free = grow_rings(&untangled, moved_vertices(&fitted, &untangled), crate::pipeline::POLISH_RINGS);
-    let (refined, polish_report) = polish(views, &untangled, &free, &fit_options, options.polish_steps)?;
+    let (refined, polish_report) = polish_moved(views, &fitted, &untangled, &fit_options, options.polish_steps)?;
     let report = RefineReport {
         fit,
         untangle: untangle_report,

@@ -5,7 +5,7 @@
 //! objects, both rigs, two iterations at 512²) is `cargo xtask refine-table`
 //! (`docs/accuracy.md`).
 
-use wonder3d::eval::{EvalOptions, composite_over_white, evaluate, psnr, with_normal_noise};
+use wonder3d::eval::{EvalOptions, evaluate, novel_view_fidelity, with_normal_noise};
 use wonder3d::recon::RefineOptions as MeshRefineOptions;
 use wonder3d::refine::{IdentityEnhancer, OracleEnhancer, RefineOptions, refine};
 use wonder3d::{Mesh, Pipeline, ViewRig, ViewSet};
@@ -33,15 +33,7 @@ fn chamfer(mesh: &Mesh, truth: &Mesh) -> f64 {
 
 /// Mean PSNR over the 16 SyncDreamer views at 128², composited over white.
 fn novel_psnr(mesh: &Mesh, truth: &Mesh) -> f64 {
-    let rig = ViewRig::syncdreamer16();
-    let render = |m: &Mesh| wonder3d::raster::render_oracle_views(m, &rig, 128).unwrap();
-    let (a, b) = (render(mesh), render(truth));
-    let over_white = |v: &wonder3d::ViewImages| {
-        composite_over_white(&v.colour.as_ref().unwrap().with_alpha(&v.mask).unwrap()).unwrap()
-    };
-    let psnrs: Vec<f64> =
-        a.views().iter().zip(b.views()).map(|(x, y)| psnr(&over_white(x), &over_white(y)).unwrap()).collect();
-    psnrs.iter().sum::<f64>() / psnrs.len() as f64
+    novel_view_fidelity(truth, mesh, 128).unwrap().psnr
 }
 
 #[test]
