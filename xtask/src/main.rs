@@ -109,9 +109,25 @@ enum Task {
         /// Output folder (generated views, meshes, eval.json).
         #[arg(long, default_value = "target/eval-small")]
         out: PathBuf,
-        /// DDIM steps.
+        /// Sampling steps.
         #[arg(long, default_value_t = 50)]
         steps: usize,
+        /// Sampler: ddim or dpmpp-2m.
+        #[arg(long, default_value = "ddim")]
+        sampler: String,
+        /// Classifier-free guidance scale.
+        #[arg(long, default_value_t = 2.0)]
+        guidance: f64,
+        /// DDIM eta (0 deterministic, 1 the authors' stochastic sampling).
+        #[arg(long, default_value_t = 0.0)]
+        eta: f64,
+        /// Initial noise independent per domain (as in training) instead of one latent per
+        /// view shared by both domains (the authors' inference).
+        #[arg(long)]
+        independent_noise: bool,
+        /// Contact sheet to write.
+        #[arg(long, default_value = "docs/img/small_model.png")]
+        sheet: PathBuf,
         /// The training set the model was trained on: also measure how much its denoising
         /// uses the condition (x₀ error with its own, another's and no condition).
         #[arg(long)]
@@ -126,6 +142,12 @@ enum Task {
         /// Side of the enhanced views in pixels.
         #[arg(long, default_value_t = 512)]
         size: u32,
+        /// Laplacian weight of the mesh refinement (default: `w3d_recon::RefineOptions`'s).
+        #[arg(long)]
+        laplacian: Option<f32>,
+        /// Learning rate of the mesh refinement (default: `w3d_recon::RefineOptions`'s).
+        #[arg(long)]
+        lr: Option<f32>,
     },
     /// Regenerate committed test fixtures with the Python peer tools.
     Fixtures {
@@ -595,10 +617,13 @@ fn main() -> ExitCode {
         Task::LoadGlb { files, vertices, triangles } => load_glb(&files, vertices, triangles),
         Task::Fixtures { which } => fixtures(&which),
         Task::TrainSmall { out, quick, resume } => train_small::run(&out, quick, resume),
-        Task::EvalSmall { model, out, steps, data } => eval_small::run(&model, &out, steps, data.as_deref()),
+        Task::EvalSmall { model, out, steps, sampler, guidance, eta, independent_noise, sheet, data } => {
+            let sampling = eval_small::Sampling { sampler, steps, guidance, eta, independent_noise };
+            eval_small::run(&model, &out, &sampling, &sheet, data.as_deref())
+        }
         Task::ShipSmall { model } => train_small::ship(&model),
         Task::Bench { suite, criterion_args } => bench(&suite, &criterion_args),
-        Task::RefineTable { meshes, size } => refine_table::run(meshes.as_deref(), size),
+        Task::RefineTable { meshes, size, laplacian, lr } => refine_table::run(meshes.as_deref(), size, laplacian, lr),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -73,7 +73,14 @@ fn refined(
     Ok(row)
 }
 
-pub(crate) fn run(meshes: Option<&str>, size: u32) -> Result<(), String> {
+pub(crate) fn run(meshes: Option<&str>, size: u32, laplacian: Option<f32>, lr: Option<f32>) -> Result<(), String> {
+    let mut mesh_options = wonder3d::recon::RefineOptions::default();
+    if let Some(w) = laplacian {
+        mesh_options = mesh_options.with_laplacian_weight(w);
+    }
+    if let Some(lr) = lr {
+        mesh_options = mesh_options.with_lr(lr);
+    }
     let wanted: Option<Vec<&str>> = meshes.map(|m| m.split(',').collect());
     let mut rows = Vec::new();
     for (name, file) in OBJECTS {
@@ -88,7 +95,7 @@ pub(crate) fn run(meshes: Option<&str>, size: u32) -> Result<(), String> {
             let coarse = Pipeline::new().from_views(&views, &mut |_| {}).map_err(|e| e.to_string())?;
             let mut coarse_row = scores(&truth, &coarse.geometry, &coarse.mesh)?;
             coarse_row["seconds"] = json!(t.elapsed().as_secs_f64());
-            let options = RefineOptions::default().with_size(size);
+            let options = RefineOptions::default().with_size(size).with_mesh(mesh_options);
             let oracle = OracleEnhancer::new(truth.clone());
             let one = refined(&truth, &coarse.geometry, &views, &oracle, &options.clone().with_iterations(1))?;
             let two = refined(&truth, &coarse.geometry, &views, &oracle, &options.clone().with_iterations(2))?;
@@ -106,6 +113,8 @@ pub(crate) fn run(meshes: Option<&str>, size: u32) -> Result<(), String> {
     let path = out.join("refine.json");
     let report = json!({
         "command": format!("cargo xtask refine-table --size {size}"),
+        "mesh_refinement": { "lr": mesh_options.lr, "laplacian_weight": mesh_options.laplacian_weight,
+                             "steps": mesh_options.steps, "edge_len_lims": mesh_options.edge_len_lims },
         "input": { "size": INPUT_SIZE, "normal_noise_sigma": SIGMA },
         "rows": rows,
     });

@@ -1,7 +1,7 @@
 //! `cargo xtask train-small`: the recipe of the small model shipped in `assets/model-small`
 //! (`docs/training.md`; `cargo xtask ship-small` puts a trained model there in f16): a training set rendered from the CC0 / CC BY meshes, a small VAE
 //! trained on its images, a frozen random CLIP image encoder, and the multi-view UNet trained
-//! through Wonder3D++'s three stages, each stage starting from the previous one.
+//! through Wonder3D++'s three stages and a joint phase on white backgrounds, each starting from the previous one.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -10,7 +10,7 @@ use wonder3d::dataset::{Dataset, DatasetOptions};
 use wonder3d::diffusion::train::{
     CHECKPOINT_DIR, RunEvent, RunOptions, STATE_FILE, Stage, TrainOptions, VaeTrainOptions, run_training, train_vae,
 };
-use wonder3d::diffusion::training_set::TrainingSet;
+use wonder3d::diffusion::training_set::{Background, TrainingSet};
 use wonder3d::diffusion::{
     ClipVision, ClipVisionConfig, MultiViewPipeline, SchedulerConfig, UNet, UNetConfig, Vae, VaeConfig,
 };
@@ -30,16 +30,37 @@ pub(crate) const TRAIN_MESHES: &[&str] = &[
 /// The held-out mesh.
 pub(crate) const HELD_OUT_MESH: &str = "assets/torus.obj";
 
+/// One phase of the UNet's training: its folder, the stage (the batch layout and, unless
+/// `train_all`, the trainable set), and whether every sample is composited on white.
+struct Phase {
+    dir: &'static str,
+    stage: Stage,
+    train_all: bool,
+    white: bool,
+}
+
+/// Wonder3D++'s three stages on the dataset's three backgrounds, then a joint phase: the whole
+/// UNet with the cross-domain attention (Wonder3D v1's joint training) on white, the only
+/// background inference uses — a model this small generates garbage from an input on a
+/// background other than the one its sample was trained on (docs/training.md).
+const PHASES: [Phase; 4] = [
+    Phase { dir: "stage1", stage: Stage::MultiDomain, train_all: false, white: false },
+    Phase { dir: "stage2", stage: Stage::MixedDomain, train_all: false, white: false },
+    Phase { dir: "stage3", stage: Stage::CrossDomain, train_all: false, white: false },
+    Phase { dir: "joint", stage: Stage::CrossDomain, train_all: true, white: true },
+];
+
 /// The schedule of one run.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Schedule {
     pub samples: usize,
     pub size: u32,
     pub vae_steps: usize,
-    pub stage_steps: [usize; 3],
-    /// Warm-up steps of each stage.
-    pub stage_warmup: [usize; 3],
-    pub stage_lr: [f64; 3],
+    /// Steps of each phase: the three stages, then the joint phase ([`PHASES`]).
+    pub stage_steps: [usize; 4],
+    /// Warm-up steps of each phase.
+    pub stage_warmup: [usize; 4],
+    pub stage_lr: [f64; 4],
     pub objects_per_batch: usize,
     /// Min-SNR γ of the UNet's loss (`None`: the plain MSE of the v-prediction).
     pub min_snr_gamma: Option<f64>,
@@ -51,9 +72,9 @@ impl Schedule {
             samples: 12,
             size: 64,
             vae_steps: 1200,
-            stage_steps: [800, 6000, 1000],
-            stage_warmup: [40, 300, 75],
-            stage_lr: [5e-4, 3e-4, 2e-4],
+            stage_steps: [800, 6000, 1000, 3000],
+            stage_warmup: [40, 300, 75, 50],
+            stage_lr: [5e-4, 3e-4, 2e-4, 1e-4],
             objects_per_batch: 1,
             // The small model predicts v and weighs every timestep alike in v (x₀ error
             // weighted by SNR + 1): with ε or Min-SNR weights (x₀ error weighted by
@@ -65,7 +86,14 @@ impl Schedule {
 
     /// A few steps of everything, to check the recipe end to end and time its steps.
     pub(crate) fn quick() -> Self {
-        Self { samples: 2, size: 64, vae_steps: 20, stage_steps: [10, 10, 10], stage_warmup: [1, 1, 1], ..Self::full() }
+        Self {
+            samples: 2,
+            size: 64,
+            vae_steps: 20,
+            stage_steps: [10, 10, 10, 10],
+            stage_warmup: [1, 1, 1, 1],
+            ..Self::full()
+        }
     }
 }
 
@@ -136,16 +164,17 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
         fresh_model(&set, &schedule, scheduler, &device, started)?
     };
 
-    // 4. The three stages.
-    for (i, stage) in [Stage::MultiDomain, Stage::MixedDomain, Stage::CrossDomain].into_iter().enumerate() {
+    // 4. The three stages and the joint phase.
+    for (i, phase) in PHASES.iter().enumerate() {
+        let stage = phase.stage;
         let steps = schedule.stage_steps[i];
-        let stage_dir = out.join(format!("stage{}", stage.number()));
+        let stage_dir = out.join(phase.dir);
         let reached = if retrain { None } else { checkpoint_step(&stage_dir) };
         if reached.is_some_and(|s| s >= steps) {
             eprintln!(
-                "[{:6.0}s] stage {}: checkpoint at its {steps} steps, loaded",
+                "[{:6.0}s] {}: checkpoint at its {steps} steps, loaded",
                 started.elapsed().as_secs_f64(),
-                stage.number()
+                phase.dir
             );
             pipeline = MultiViewPipeline::from_dir(stage_dir.join(CHECKPOINT_DIR), &device).map_err(err)?;
             continue;
@@ -153,7 +182,7 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
         // This stage trains: every later one starts afresh.
         retrain = true;
         let resume_stage = reached.is_some();
-        if stage == Stage::CrossDomain && !resume_stage {
+        if stage == Stage::CrossDomain && !pipeline.unet().config().cd_attention_mid && !resume_stage {
             let (unet, vae, clip, scheduler) = pipeline.into_parts();
             let unet = unet.with_cross_domain_attention(4).map_err(err)?;
             pipeline = MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)?;
@@ -162,7 +191,9 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
             .with_learning_rate(schedule.stage_lr[i])
             .with_warmup_steps(schedule.stage_warmup[i])
             .with_min_snr_gamma(schedule.min_snr_gamma)
+            .with_train_all(phase.train_all)
             .with_seed(10 + i as u64);
+        let set = set.clone().with_background(phase.white.then_some(Background::White));
         let run = RunOptions::default()
             .with_steps(steps)
             .with_objects_per_batch(schedule.objects_per_batch)
@@ -177,8 +208,8 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
                 && (log.step % 50 == 0 || log.step == steps)
             {
                 eprintln!(
-                    "  stage {} step {}/{steps}: loss {:.4} ({:.2} s/step)",
-                    stage.number(),
+                    "  {} step {}/{steps}: loss {:.4} ({:.2} s/step)",
+                    phase.dir,
                     log.step,
                     log.loss,
                     t.elapsed().as_secs_f64() / (log.step - first).max(1) as f64
@@ -186,7 +217,7 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
             }
         })
         .map_err(err)?;
-        eprintln!("[{:6.0}s] stage {} done", started.elapsed().as_secs_f64(), stage.number());
+        eprintln!("[{:6.0}s] {} done", started.elapsed().as_secs_f64(), phase.dir);
     }
     let model = out.join("model");
     pipeline.save(&model).map_err(err)?;
@@ -196,6 +227,9 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
             "samples_per_mesh": schedule.samples, "size": schedule.size, "vae_steps": schedule.vae_steps,
             "stage_steps": schedule.stage_steps, "stage_warmup": schedule.stage_warmup, "stage_lr": schedule.stage_lr,
             "objects_per_batch": schedule.objects_per_batch, "min_snr_gamma": schedule.min_snr_gamma,
+            "phases": PHASES.iter().map(|p| serde_json::json!({
+                "dir": p.dir, "stage": p.stage.number(), "train_all": p.train_all, "white_background": p.white,
+            })).collect::<Vec<_>>(),
         },
         "meshes": TRAIN_MESHES, "held_out": HELD_OUT_MESH,
         "resumed": resume,

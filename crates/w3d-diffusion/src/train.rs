@@ -131,6 +131,10 @@ pub struct TrainOptions {
     /// at the (s + 1)-th optimizer step (the first step copies the weights). See
     /// [`Trainer::ema_unet`].
     pub ema_decay: Option<f64>,
+    /// Train every parameter whatever the stage (off: the stage's set, [`Stage::trains`]).
+    /// In stage 3 this is Wonder3D (v1)'s joint training, where the whole UNet learns with
+    /// the cross-domain attention; the small model's last phase uses it (`docs/training.md`).
+    pub train_all: bool,
 }
 
 impl TrainOptions {
@@ -150,7 +154,14 @@ impl TrainOptions {
             condition_drop_rate: 0.05,
             seed: 0,
             ema_decay: None,
+            train_all: false,
         }
+    }
+
+    /// Trains every parameter whatever the stage (see [`TrainOptions::train_all`]).
+    pub fn with_train_all(mut self, train_all: bool) -> Self {
+        self.train_all = train_all;
+        self
     }
 
     /// Keeps an exponential moving average of the trainable weights with maximum decay
@@ -485,7 +496,7 @@ impl Trainer {
         let objective = DiffusionObjective::new(scheduler, options.min_snr_gamma)?;
         let mut trainable = HashMap::new();
         for named in unet.named_parameters() {
-            if options.stage.trains(&named.key) {
+            if options.train_all || options.stage.trains(&named.key) {
                 trainable.insert(named.id, (named.key.clone(), named.key.starts_with("class_embedding.")));
             }
         }

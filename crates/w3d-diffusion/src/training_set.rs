@@ -120,6 +120,7 @@ pub struct TrainingSet {
     dir: PathBuf,
     size: u32,
     samples: Vec<TrainingSample>,
+    background: Option<Background>,
 }
 
 /// The model images of one sample: 6 views per domain, 3 channels, values in `[0, 1]`.
@@ -207,7 +208,7 @@ impl TrainingSet {
             }
             samples.push(TrainingSample { id: s.id, camera, background });
         }
-        Ok(Self { dir, size: index.size, samples })
+        Ok(Self { dir, size: index.size, samples, background: None })
     }
 
     /// The set's folder.
@@ -223,6 +224,15 @@ impl TrainingSet {
     /// The samples.
     pub fn samples(&self) -> &[TrainingSample] {
         &self.samples
+    }
+
+    /// The set with every sample composited on `background` instead of the one its index
+    /// records (`None`: the recorded one). Inference always uses white; a model too small to
+    /// spend capacity on the other two backgrounds can train on white alone.
+    #[must_use]
+    pub fn with_background(mut self, background: Option<Background>) -> Self {
+        self.background = background;
+        self
     }
 
     /// Number of samples.
@@ -251,7 +261,7 @@ impl TrainingSet {
                 format!("the rig {:?} of the sample's camera type (found {:?})", expected.name, set.rig().name),
             ));
         }
-        let bg = sample.background.value();
+        let bg = self.background.unwrap_or(sample.background).value();
         let mut domains: [Vec<Image>; 3] = Default::default();
         let mut inputs = Vec::with_capacity(3);
         for view in set.views() {

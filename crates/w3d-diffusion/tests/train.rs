@@ -149,6 +149,10 @@ fn stage_three_changes_only_the_joint_attention() {
         }
     }
     assert!(changed > 0, "no joint_mid parameter changed");
+    // With train_all, stage 3 trains every parameter (Wonder3D v1's joint training).
+    let unet = UNet::random(&tiny_config(), 11, &w3d_diffusion::default_device()).unwrap();
+    let options = TrainOptions::for_stage(Stage::CrossDomain).with_train_all(true);
+    assert_eq!(Trainer::new(unet, scheduler(), options).unwrap().trainable_tensors(), before.len());
 }
 
 #[test]

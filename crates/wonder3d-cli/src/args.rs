@@ -179,3 +179,16 @@ pub fn eta(s: &str) -> Result<f64, String> {
 pub fn exponent(s: &str) -> Result<f32, String> {
     finite_in(s, 0.0, 64.0, "an exponent").map(|v| v as f32)
 }
+
+/// `--min-snr-gamma`: γ of the Min-SNR loss weighting, or none.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MinSnrGamma(pub Option<f64>);
+
+/// Min-SNR γ: `none`, or finite, above 0, at most 1000.
+pub fn min_snr_gamma(s: &str) -> Result<MinSnrGamma, String> {
+    if s == "none" {
+        return Ok(MinSnrGamma(None));
+    }
+    let gamma = finite_in(s, 0.0, 1000.0, "a Min-SNR gamma (or none)")?;
+    if gamma == 0.0 { Err("a Min-SNR gamma above 0 (or none)".into()) } else { Ok(MinSnrGamma(Some(gamma))) }
+}

@@ -7,6 +7,7 @@
 //! wonder3d reconstruct views/spot --out spot.glb --report report.json  # init + coarse
 //! wonder3d eval spot.glb assets/spot.obj --json  # chamfer, fscore_0.01, iou_64, …
 //! wonder3d texture assets/spot.obj views/spot --normalize --out spot.glb  # uv atlas + baked texture
+//! wonder3d refine spot.glb views/spot --enhancer oracle:assets/spot.obj --out refined.glb  # enhance -> refine, 2 iterations
 //! wonder3d demo --out demo                     # the whole pipeline on the bundled spot
 //! wonder3d prepare mug.jpg --out mug.png --mask-out mask.png  # photo -> framed RGBA (background removed)
 //! wonder3d generate cup.jpg --weights ckpts --out views/cup  # 6 views x {normal, colour} (docs/weights.md)
@@ -26,6 +27,7 @@ mod info;
 mod prepare;
 mod progress;
 mod reconstruct;
+mod refine;
 mod render;
 mod run;
 mod texture;
@@ -54,6 +56,8 @@ enum Command {
     Reconstruct(reconstruct::ReconstructArgs),
     /// Texture a mesh from colour views: uv atlas, baked texture, GLB or OBJ out.
     Texture(texture::TextureArgs),
+    /// Refine a reconstructed mesh and its texture against enhanced views (enhance → refine mesh → refine texture).
+    Refine(refine::RefineArgs),
     /// The whole pipeline on the bundled spot, no downloads: views → mesh → texture → GLB + report.
     Demo(demo::DemoArgs),
     /// A photo or RGBA image → the model's input: background removed (with a confidence score), cropped and centred.
@@ -78,6 +82,7 @@ fn main() -> ExitCode {
         Command::Eval(args) => eval::run(&args),
         Command::Reconstruct(args) => reconstruct::run(&args),
         Command::Texture(args) => texture::run(&args),
+        Command::Refine(args) => refine::run(&args),
         Command::Demo(args) => demo::run(&args),
         Command::Prepare(args) => prepare::run(&args),
         Command::Generate(args) => generate::run(&args),

@@ -7,6 +7,21 @@ use std::path::PathBuf;
 
 use wonder3d::Result;
 
+use crate::args::MinSnrGamma;
+
+/// `--background` of `wonder3d train`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum BackgroundArg {
+    /// The background each sample records in `dataset.json`.
+    Dataset,
+    /// White (inference's).
+    White,
+    /// Black.
+    Black,
+    /// Grey (0.5).
+    Grey,
+}
+
 /// Arguments of `wonder3d train`.
 #[derive(clap::Args)]
 #[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
@@ -54,6 +69,18 @@ pub struct TrainArgs {
     /// `OUT/model-ema` (the model to generate with).
     #[arg(long, value_parser = crate::args::ema_decay)]
     pub ema_decay: Option<f64>,
+    /// Min-SNR-γ loss weighting: a number (the authors' 5, the default) or `none` for the
+    /// plain MSE of the model's prediction type (the small model's recipe, `docs/training.md`).
+    #[arg(long, default_value = "5", allow_hyphen_values = true, value_parser = crate::args::min_snr_gamma)]
+    pub min_snr_gamma: MinSnrGamma,
+    /// Train the whole UNet whatever the stage (in stage 3: Wonder3D v1's joint training
+    /// instead of the joint attention alone).
+    #[arg(long)]
+    pub train_all: bool,
+    /// Composite every sample on this background instead of the one `dataset.json` records
+    /// (`dataset`: the recorded one; inference always uses white).
+    #[arg(long, value_enum, default_value_t = BackgroundArg::Dataset)]
+    pub background: BackgroundArg,
     /// Continue the run in `--out` from its checkpoint (bit-identical to an uninterrupted run).
     #[arg(long)]
     pub resume: bool,
@@ -73,7 +100,14 @@ pub fn run(args: &TrainArgs) -> Result<()> {
 
     let stage = Stage::from_number(args.stage)?;
     // Everything cheap is checked before the model loads: the set's index, the output folder.
-    let set = TrainingSet::open(&args.data)?;
+    use wonder3d::diffusion::training_set::Background;
+    let background = match args.background {
+        BackgroundArg::Dataset => None,
+        BackgroundArg::White => Some(Background::White),
+        BackgroundArg::Black => Some(Background::Black),
+        BackgroundArg::Grey => Some(Background::Grey),
+    };
+    let set = TrainingSet::open(&args.data)?.with_background(background);
     let checkpoint = args.out.join(wonder3d::diffusion::train::CHECKPOINT_DIR);
     if !args.resume && checkpoint.exists() {
         return Err(Error::invalid(
@@ -98,7 +132,9 @@ pub fn run(args: &TrainArgs) -> Result<()> {
         .with_warmup_steps(args.warmup as usize)
         .with_gradient_accumulation(args.accumulate as usize)
         .with_seed(args.seed)
-        .with_ema_decay(args.ema_decay);
+        .with_ema_decay(args.ema_decay)
+        .with_min_snr_gamma(args.min_snr_gamma.0)
+        .with_train_all(args.train_all);
     if let Some(lr) = args.lr {
         options = options.with_learning_rate(lr);
     }

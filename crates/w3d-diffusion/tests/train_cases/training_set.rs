@@ -6,7 +6,7 @@ use std::path::Path;
 use crate::common::fixture;
 use w3d_core::{Image, ViewImages, ViewSet};
 use w3d_diffusion::train::Stage;
-use w3d_diffusion::training_set::{EncodedSample, TrainDomain, TrainingSet, assemble_batch};
+use w3d_diffusion::training_set::{Background, EncodedSample, TrainDomain, TrainingSet, assemble_batch};
 use w3d_diffusion::{CameraType, MultiViewPipeline};
 
 const SIZE: u32 = 32; // the tiny fixture model's image side (8 × the VAE's 4)
@@ -99,6 +99,16 @@ fn model_images_share_the_samples_background() {
     let row = SIZE / 2;
     let covered = (0..SIZE).filter(|&x| input.pixel(x, row) != [grey; 3]).count() as f32 / SIZE as f32;
     assert!((covered - 0.75).abs() < 0.07, "input covers {covered} of its width");
+    // A background override composites every sample, inputs and targets, on it instead.
+    let white = set.clone().with_background(Some(Background::White));
+    for index in 0..2 {
+        let images = white.images(index).unwrap();
+        assert_eq!(images.domains[0][3].pixel(0, 0), [1.0; 3]);
+        assert_eq!(images.domains[1][0].pixel(0, 0), [1.0; 3]);
+        assert_eq!(images.domains[2][0].pixel(0, 0), [0.0; 3], "masks stay black outside the object");
+        assert_eq!(images.inputs[1].pixel(0, 0), [1.0; 3]);
+    }
+    assert_eq!(white.with_background(None).images(0).unwrap().domains[1][0].pixel(0, 0), [0.0; 3]);
 }
 
 #[test]

@@ -1,5 +1,5 @@
-//! `wonder3d render` → `wonder3d reconstruct` → `wonder3d eval`: the command-line hand-over
-//! on small views, the report file, and clear errors for bad input.
+//! `wonder3d render` → `wonder3d reconstruct` → `wonder3d refine` → `wonder3d eval`: the
+//! command-line hand-over on small views, the report files, and clear errors for bad input.
 
 use crate::common::wonder3d;
 use std::path::PathBuf;
@@ -88,4 +88,83 @@ fn demo_writes_glb_contact_sheet_and_report() {
     // 6 views by 4 rows (input / result × colour / normal), plus the label margin and line.
     assert!(sheet.width() > 6 * 128 && sheet.width() < 7 * 128, "{}", sheet.width());
     assert!(sheet.height() > 4 * 128 && sheet.height() < 5 * 128, "{}", sheet.height());
+}
+
+#[test]
+fn refine_with_the_oracle_sharpens_a_coarse_mesh() {
+    let dir = tempfile::tempdir().unwrap();
+    let views = dir.path().join("views");
+    let coarse = dir.path().join("coarse.ply");
+    let refined = dir.path().join("refined.glb");
+    let report = dir.path().join("refine.json");
+    let run = wonder3d(&["render", &spot(), "--size", "64", "--out", views.to_str().unwrap()]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let run = wonder3d(&["reconstruct", views.to_str().unwrap(), "--out", coarse.to_str().unwrap(), "--quiet"]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let oracle = format!("oracle:{}", spot());
+    let run = wonder3d(&[
+        "refine",
+        coarse.to_str().unwrap(),
+        views.to_str().unwrap(),
+        "--enhancer",
+        &oracle,
+        "--iterations",
+        "1",
+        "--size",
+        "192",
+        "--texture-size",
+        "256",
+        "--out",
+        refined.to_str().unwrap(),
+        "--report",
+        report.to_str().unwrap(),
+        "--quiet",
+    ]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let json = crate::common::read_json(&report);
+    assert_eq!(json["enhancer"], "oracle", "{json}");
+    assert_eq!(json["iterations"].as_array().unwrap().len(), 1, "{json}");
+    let mesh = wonder3d::load_mesh(&refined).unwrap();
+    assert!(mesh.texture().is_some(), "the refined GLB carries its texture");
+    let chamfer = |path: &std::path::Path| {
+        let run = wonder3d(&["eval", path.to_str().unwrap(), &spot(), "--json", "--samples", "20000"]);
+        assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+        let metrics: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+        metrics["chamfer"].as_f64().unwrap()
+    };
+    let (before, after) = (chamfer(&coarse), chamfer(&refined));
+    assert!(after < before, "the oracle at 192² sharpens the 64² reconstruction: chamfer {before} -> {after}");
+}
+
+#[test]
+fn refine_names_what_is_wrong_before_any_work() {
+    let dir = tempfile::tempdir().unwrap();
+    let views = dir.path().join("views");
+    let run = wonder3d(&["render", &spot(), "--size", "32", "--out", views.to_str().unwrap()]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let out = dir.path().join("x.glb");
+    let (v, o) = (views.to_str().unwrap(), out.to_str().unwrap());
+    // An enhancer that is not one of the two: clap's usage error, naming what is accepted.
+    let run = wonder3d(&["refine", &spot(), v, "--enhancer", "controlnet", "--out", o]);
+    assert_eq!(run.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("identity or oracle:MESH") && err.contains("docs/architecture.md"), "{err}");
+    let run = wonder3d(&["refine", &spot(), v, "--enhancer", "oracle:", "--out", o]);
+    assert_eq!(run.status.code(), Some(2));
+    let run = wonder3d(&["refine", &spot(), v, "--enhancer", "identity", "--iterations", "11", "--out", o]);
+    assert_eq!(run.status.code(), Some(2));
+    // A missing oracle mesh and a missing view folder are named.
+    let missing = dir.path().join("no-such-mesh.obj");
+    let run = wonder3d(&["refine", &spot(), v, "--enhancer", &format!("oracle:{}", missing.display()), "--out", o]);
+    assert_eq!(run.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&run.stderr).contains("no-such-mesh.obj"));
+    let run = wonder3d(&["refine", &spot(), "no-such-views", "--enhancer", "identity", "--out", o]);
+    assert_eq!(run.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&run.stderr).contains("no-such-views"));
+    // An output that cannot be written fails before the work.
+    let nowhere = dir.path().join("missing-folder").join("x.glb");
+    let run = wonder3d(&["refine", &spot(), v, "--enhancer", "identity", "--out", nowhere.to_str().unwrap()]);
+    assert_eq!(run.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&run.stderr).contains("missing-folder"));
+    assert!(!out.exists());
 }

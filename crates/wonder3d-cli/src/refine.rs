@@ -1,0 +1,150 @@
+//! `wonder3d refine MESH VIEWS --enhancer identity|oracle:MESH --out X.glb`: the refinement
+//! loop (enhance four views at `--size` → refine the mesh → refine the texture), after
+//! `wonder3d reconstruct`.
+
+use std::path::PathBuf;
+use std::time::Duration;
+
+use indicatif::{ProgressBar, ProgressStyle};
+use wonder3d::core::io::write_atomic;
+use wonder3d::refine::{Enhancer, IdentityEnhancer, OracleEnhancer, RefineOptions, RefineProgress, RefineStep, refine};
+use wonder3d::{Error, Result, TextureOptions, ViewSet, check_outputs, load_mesh, save_mesh};
+
+/// `--enhancer`: where the enhanced views come from.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum EnhancerArg {
+    /// The renders themselves: the loop only re-fits the mesh at the finer resolution.
+    Identity,
+    /// Renders of a known mesh (the best any enhancer could do).
+    Oracle(PathBuf),
+}
+
+/// Parses `--enhancer`: `identity` or `oracle:MESH`.
+pub fn enhancer(s: &str) -> std::result::Result<EnhancerArg, String> {
+    match s {
+        "identity" => Ok(EnhancerArg::Identity),
+        _ => match s.strip_prefix("oracle:") {
+            Some("") => Err("oracle:MESH needs a mesh file after the colon".into()),
+            Some(mesh) => Ok(EnhancerArg::Oracle(PathBuf::from(mesh))),
+            None => Err(format!(
+                "identity or oracle:MESH (found {s:?}; the diffusion enhancer, which would read a model \
+                 directory, is not part of this version: see the refinement section of docs/architecture.md)"
+            )),
+        },
+    }
+}
+
+/// Refinement iterations: 0 to 10.
+fn iterations(s: &str) -> std::result::Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(n) if n <= 10 => Ok(n),
+        _ => Err(format!("a whole number of iterations from 0 to 10 (found {s:?})")),
+    }
+}
+
+/// Arguments of `wonder3d refine`.
+#[derive(clap::Args)]
+pub struct RefineArgs {
+    /// The closed mesh reconstructed from VIEWS (e.g. by `wonder3d reconstruct`), in the views'
+    /// world frame; its uvs, colours and texture are ignored.
+    mesh: PathBuf,
+    /// The view-set folder the mesh was reconstructed from, with colour views (`wonder3d
+    /// render` or `wonder3d generate` writes one); its rig must have the front, right, back and
+    /// left views.
+    views: PathBuf,
+    /// Enhancer: `identity` (the renders of the current mesh, unchanged) or `oracle:MESH`
+    /// (renders of MESH, oriented outward and normalised into the unit cube as `wonder3d
+    /// render` does; `--no-normalize` keeps its coordinates).
+    #[arg(long, value_parser = enhancer)]
+    enhancer: EnhancerArg,
+    /// Output file: `.glb` (embedded texture), `.obj` (+ `.mtl` + `.png`) or `.ply`.
+    #[arg(long)]
+    out: PathBuf,
+    /// Refinement iterations (the reference runs 2; 0 textures MESH as `wonder3d run` would).
+    #[arg(long, default_value_t = RefineOptions::default().iterations, value_parser = iterations)]
+    iterations: usize,
+    /// Side of the renders and enhanced views in pixels (the reference: 512).
+    #[arg(long, default_value_t = RefineOptions::default().size, allow_hyphen_values = true, value_parser = crate::args::view_size)]
+    size: u32,
+    /// Texture width and height in texels.
+    #[arg(long, default_value_t = TextureOptions::default().size, allow_hyphen_values = true, value_parser = crate::args::texture_size)]
+    texture_size: u32,
+    /// Use the oracle mesh in its own coordinates (for views rendered with `wonder3d render
+    /// --no-normalize`).
+    #[arg(long)]
+    no_normalize: bool,
+    /// Also write the refinement report (per iteration: fit losses, untangle, texture
+    /// projection, seconds) as JSON.
+    #[arg(long)]
+    report: Option<PathBuf>,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
+}
+
+/// A bar following the refinement's iterations and fitting steps (hidden when `quiet`).
+fn refine_bar(quiet: bool) -> Result<ProgressBar> {
+    let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(1) };
+    bar.set_style(
+        ProgressStyle::with_template("{prefix:>14} [{bar:40}] {pos}/{len} {msg} ({elapsed})")
+            .map_err(|e| Error::invalid("progress template", e.to_string()))?
+            .progress_chars("=> "),
+    );
+    bar.enable_steady_tick(Duration::from_millis(200));
+    Ok(bar)
+}
+
+/// Runs `wonder3d refine`.
+pub fn run(args: &RefineArgs) -> Result<()> {
+    check_outputs(&args.out, args.report.as_deref(), None)?;
+    let texture = TextureOptions::default().with_size(args.texture_size);
+    texture.validate()?;
+    let options = RefineOptions::default().with_iterations(args.iterations).with_size(args.size).with_texture(texture);
+    let mut geometry = load_mesh(&args.mesh)?.without_attributes();
+    crate::args::orient_outward(&mut geometry, &args.mesh);
+    let enhancer: Box<dyn Enhancer> = match &args.enhancer {
+        EnhancerArg::Identity => Box::new(IdentityEnhancer),
+        EnhancerArg::Oracle(path) => {
+            let mut truth = load_mesh(path)?;
+            crate::args::orient_outward(&mut truth, path);
+            if !args.no_normalize {
+                truth.normalize_unit_cube();
+            }
+            Box::new(OracleEnhancer::new(truth))
+        }
+    };
+    let views = ViewSet::load(&args.views)?;
+    let bar = refine_bar(args.quiet)?;
+    let refined = refine(&geometry, &views, enhancer.as_ref(), &options, &mut |p: RefineProgress| {
+        bar.set_prefix(format!("refine {}/{}", p.iteration + 1, p.iterations));
+        match p.step {
+            RefineStep::Enhancing => {
+                bar.set_message("enhancing");
+                bar.set_position(0);
+            }
+            RefineStep::Fitting { done, total, loss } => {
+                bar.set_length(total as u64);
+                bar.set_position(done as u64);
+                bar.set_message(format!("loss {loss:.5}"));
+            }
+            RefineStep::Texturing => bar.set_message("texturing"),
+            _ => {}
+        }
+    })?;
+    bar.finish_and_clear();
+    save_mesh(&args.out, &refined.mesh)?;
+    if let Some(path) = &args.report {
+        let json = serde_json::to_vec_pretty(&refined.report).map_err(|e| Error::invalid("report", e.to_string()))?;
+        write_atomic(path, |w| std::io::Write::write_all(w, &json).map_err(|e| Error::io(path, e)))?;
+    }
+    let r = &refined.report;
+    println!(
+        "refined with the {} enhancer: {} iteration(s), {} triangles in {:.1} s -> {}",
+        r.enhancer,
+        r.iterations.len(),
+        r.triangles,
+        r.seconds,
+        args.out.display()
+    );
+    Ok(())
+}
