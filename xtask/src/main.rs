@@ -118,8 +118,9 @@ enum Task {
         /// Classifier-free guidance scale.
         #[arg(long, default_value_t = 2.0)]
         guidance: f64,
-        /// DDIM eta (0 deterministic, 1 the authors' stochastic sampling).
-        #[arg(long, default_value_t = 0.0)]
+        /// DDIM eta (0 deterministic, 1 the authors' stochastic sampling, as `wonder3d demo
+        /// --from-image` samples).
+        #[arg(long, default_value_t = 1.0)]
         eta: f64,
         /// Initial noise independent per domain (as in training) instead of one latent per
         /// view shared by both domains (the authors' inference).
