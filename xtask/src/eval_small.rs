@@ -95,6 +95,17 @@ pub(crate) struct Sampling {
     pub independent_noise: bool,
 }
 
+/// `rgb` (3 channels, values in `[0, 1]`) composited over white by `mask`: how the model sees a
+/// view.
+fn on_white(rgb: &[f32], mask: &Image) -> Result<Image, String> {
+    let values: Vec<f32> = rgb
+        .chunks_exact(3)
+        .zip(mask.data())
+        .flat_map(|(c, &m)| c.iter().map(move |&x| x * m + (1.0 - m)).collect::<Vec<_>>())
+        .collect();
+    Image::new(mask.width(), mask.height(), 3, values).map_err(err)
+}
+
 /// The best the model could score through its VAE: the true views on white (normals encoded
 /// as `(n + 1) / 2`, as the model draws them) encoded and decoded, then read back as
 /// generated views are ([`wonder3d::diffusion::GeneratedViews::to_view_set`]) — the normal error and mask IoU of
@@ -105,24 +116,15 @@ fn vae_round_trip(
     camera: CameraType,
     device: &wonder3d::diffusion::Device,
 ) -> Result<wonder3d::eval::ViewAgreement, String> {
-    let on_white = |rgb: &[f32], mask: &[f32], encode: bool| -> Vec<f32> {
-        rgb.chunks_exact(3)
-            .zip(mask)
-            .flat_map(|(c, &m)| {
-                c.iter().map(move |&x| if encode { (x + 1.0) * 0.5 } else { x } * m + (1.0 - m)).collect::<Vec<_>>()
-            })
-            .collect()
-    };
     let mut latents = Vec::new();
     for encode_normals in [true, false] {
         for view in truth.views() {
-            let (w, h) = (view.mask.width(), view.mask.height());
-            let rgb = if encode_normals {
-                on_white(view.normal.data(), view.mask.data(), true)
+            let image = if encode_normals {
+                let encoded: Vec<f32> = view.normal.data().iter().map(|&n| (n + 1.0) * 0.5).collect();
+                on_white(&encoded, &view.mask)?
             } else {
-                on_white(view.colour.as_ref().ok_or("no colour view")?.data(), view.mask.data(), false)
+                on_white(view.colour.as_ref().ok_or("no colour view")?.data(), &view.mask)?
             };
-            let image = Image::new(w, h, 3, rgb).map_err(err)?;
             latents.push(pipeline.image_latent(&image, device).map_err(err)?);
         }
     }
@@ -230,14 +232,7 @@ pub(crate) fn run(
         let mut true_row = vec![input];
         true_row.extend(pictures(&truth)?);
         for v in truth.views() {
-            let colour = v.colour.as_ref().ok_or("no colour view")?;
-            let on_white: Vec<f32> = colour
-                .data()
-                .chunks_exact(3)
-                .zip(v.mask.data())
-                .flat_map(|(c, &m)| c.iter().map(move |&x| x * m + (1.0 - m)).collect::<Vec<_>>())
-                .collect();
-            true_row.push(Image::new(size, size, 3, on_white).map_err(err)?);
+            true_row.push(on_white(v.colour.as_ref().ok_or("no colour view")?.data(), &v.mask)?);
         }
         let tag = if held_out { " (held out)" } else { "" };
         rows.push(SheetRow { label: format!("{name}{tag}: generated"), images: gen_row });

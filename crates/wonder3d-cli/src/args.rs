@@ -160,6 +160,11 @@ pub fn ema_decay(s: &str) -> Result<f64, String> {
     if d >= 1.0 { Err("an EMA decay below 1".into()) } else { Ok(d) }
 }
 
+/// Refinement iterations: 0 to 10.
+pub fn refine_iterations(s: &str) -> Result<usize, String> {
+    whole_in(s, 0, 10, " iterations")
+}
+
 /// DDIM steps: 1 to 1000 (the scheduler's training steps).
 pub fn steps(s: &str) -> Result<usize, String> {
     whole_in(s, 1, 1000, " steps")

@@ -3,12 +3,12 @@
 //! `wonder3d reconstruct`.
 
 use std::path::PathBuf;
-use std::time::Duration;
 
-use indicatif::{ProgressBar, ProgressStyle};
 use wonder3d::core::io::write_atomic;
 use wonder3d::refine::{Enhancer, IdentityEnhancer, OracleEnhancer, RefineOptions, RefineProgress, RefineStep, refine};
 use wonder3d::{Error, Result, TextureOptions, ViewSet, check_outputs, load_mesh, save_mesh};
+
+use crate::progress;
 
 /// `--enhancer`: where the enhanced views come from.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -34,14 +34,6 @@ pub fn enhancer(s: &str) -> std::result::Result<EnhancerArg, String> {
     }
 }
 
-/// Refinement iterations: 0 to 10.
-fn iterations(s: &str) -> std::result::Result<usize, String> {
-    match s.parse::<usize>() {
-        Ok(n) if n <= 10 => Ok(n),
-        _ => Err(format!("a whole number of iterations from 0 to 10 (found {s:?})")),
-    }
-}
-
 /// Arguments of `wonder3d refine`.
 #[derive(clap::Args)]
 pub struct RefineArgs {
@@ -61,7 +53,7 @@ pub struct RefineArgs {
     #[arg(long)]
     out: PathBuf,
     /// Refinement iterations (the reference runs 2; 0 textures MESH as `wonder3d run` would).
-    #[arg(long, default_value_t = RefineOptions::default().iterations, value_parser = iterations)]
+    #[arg(long, default_value_t = RefineOptions::default().iterations, value_parser = crate::args::refine_iterations)]
     iterations: usize,
     /// Side of the renders and enhanced views in pixels (the reference: 512).
     #[arg(long, default_value_t = RefineOptions::default().size, allow_hyphen_values = true, value_parser = crate::args::view_size)]
@@ -80,18 +72,6 @@ pub struct RefineArgs {
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
-}
-
-/// A bar following the refinement's iterations and fitting steps (hidden when `quiet`).
-fn refine_bar(quiet: bool) -> Result<ProgressBar> {
-    let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(1) };
-    bar.set_style(
-        ProgressStyle::with_template("{prefix:>14} [{bar:40}] {pos}/{len} {msg} ({elapsed})")
-            .map_err(|e| Error::invalid("progress template", e.to_string()))?
-            .progress_chars("=> "),
-    );
-    bar.enable_steady_tick(Duration::from_millis(200));
-    Ok(bar)
 }
 
 /// Runs `wonder3d refine`.
@@ -114,7 +94,7 @@ pub fn run(args: &RefineArgs) -> Result<()> {
         }
     };
     let views = ViewSet::load(&args.views)?;
-    let bar = refine_bar(args.quiet)?;
+    let bar = progress::bar(args.quiet)?;
     let refined = refine(&geometry, &views, enhancer.as_ref(), &options, &mut |p: RefineProgress| {
         bar.set_prefix(format!("refine {}/{}", p.iteration + 1, p.iterations));
         match p.step {
