@@ -55,6 +55,7 @@ use clap::{Parser, Subcommand};
 
 mod chart;
 mod eval_small;
+mod gpu;
 mod recon;
 mod refine_table;
 mod robust;
@@ -73,12 +74,19 @@ enum Task {
     Deny,
     /// Run a criterion suite and collect its medians into target/bench/SUITE.json.
     Bench {
-        /// Suite name: the bench target `SUITE` (of the crate `w3d-SUITE`; `train` is w3d-diffusion's).
+        /// Suite name: the bench target `SUITE` (of the crate `w3d-SUITE`; `train` and `gpu` are
+        /// w3d-diffusion's, `gpu` in the wgpu build: `-- --model tiny|small|real --device wgpu|cpu`).
         suite: String,
         /// Extra arguments passed to criterion (e.g. a filter, `--measurement-time 5`).
         #[arg(last = true)]
         criterion_args: Vec<String>,
     },
+    /// Check the GPU path (docs/gpu.md): builds the `wgpu` feature in target/wgpu, installs
+    /// Mesa's software Vulkan driver (lavapipe) when the machine has no Vulkan driver, runs
+    /// the model parity tests on wgpu against flex and the references, `wonder3d generate`
+    /// with the small model on wgpu and on the CPU (views compared), and the GPU benchmark on
+    /// the tiny checkpoint.
+    GpuCheck,
     /// Train the small multi-view model (docs/training.md): dataset, VAE, three UNet stages.
     TrainSmall {
         /// Output folder (dataset, stage checkpoints and logs, final model).
@@ -304,6 +312,9 @@ fn torch_comparison(script: &str, rows: &mut Vec<serde_json::Value>) -> Result<(
 fn bench(suite: &str, criterion_args: &[String]) -> Result<(), String> {
     if suite == "recon" {
         return recon::run(criterion_args);
+    }
+    if suite == "gpu" {
+        return gpu::bench(criterion_args);
     }
     let start = std::time::SystemTime::now();
     let mut cmd = Command::new("cargo");
@@ -611,6 +622,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Task::Deny => deny(),
+        Task::GpuCheck => gpu::check(),
         Task::Chart => chart::run(),
         Task::Package { verify } => package(verify),
         Task::BuildParity => build_parity(),

@@ -239,15 +239,36 @@ impl TransformerBlock {
         let x = within_views(self.norm1.forward(x.clone()), self.views, |t| attn1.forward(t, None)) + x;
         let x = joint_attention(x, self.norm_joint_mid.as_ref(), self.attn_joint_mid.as_ref());
         let x = self.attn2.forward(self.norm2.forward(x.clone()), Some(context)) + x;
-        let h = self.ff_proj.forward(self.norm3.forward(x.clone()));
-        let [b, t, two_inner] = h.dims();
-        let inner = two_inner / 2;
-        let hidden = h.clone().slice([0..b, 0..t, 0..inner]);
-        let gate = h.slice([0..b, 0..t, inner..two_inner]);
-        let x = self.ff_out.forward(hidden * gelu(gate)) + x;
+        let x = self.feed_forward(self.norm3.forward(x.clone())) + x;
         joint_attention(x, self.norm_joint_last.as_ref(), self.attn_joint_last.as_ref())
     }
+
+    /// The GEGLU feed-forward `ff_out(hidden · gelu(gate))`, `[hidden, gate] = ff_proj(x)`,
+    /// on groups of images small enough that the projection holds at most
+    /// [`FEED_FORWARD_MAX_VALUES`] values at a time (tokens are independent here, so the
+    /// numbers are the same as on the whole batch).
+    fn feed_forward(&self, x: Tensor<3>) -> Tensor<3> {
+        let t = x.dims()[1];
+        let two_inner = self.ff_proj.weight.dims()[1];
+        let group = (FEED_FORWARD_MAX_VALUES / (t * two_inner).max(1)).max(1);
+        let geglu = |x: Tensor<3>| {
+            let h = self.ff_proj.forward(x);
+            let [n, t, two_inner] = h.dims();
+            let inner = two_inner / 2;
+            let hidden = h.clone().slice([0..n, 0..t, 0..inner]);
+            let gate = h.slice([0..n, 0..t, inner..two_inner]);
+            self.ff_out.forward(hidden * gelu(gate))
+        };
+        crate::nn::in_groups(x, group, geglu)
+    }
 }
+
+/// Largest GEGLU projection (`images × tokens × 2·inner` values) a transformer block computes
+/// at once. Without a bound, the 32×32 level of a guided multi-view step (24 images × 1024
+/// tokens × 2560) holds 63 M values (252 MB) plus two products of half that size; in groups
+/// of images below 8 M values the real-size step's peak memory drops by 0.1–0.2 GiB for the
+/// same numbers (`docs/benchmarks.md`; a bound of 4 M saved nothing more).
+pub const FEED_FORWARD_MAX_VALUES: usize = 1 << 23;
 
 /// The residual cross-domain attention step `x + attn(norm(x))` (the attention joint over both
 /// domains' tokens of a view, see [`across_domains`]), or `x` when the block has none there.

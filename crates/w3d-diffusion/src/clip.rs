@@ -14,7 +14,7 @@ use w3d_core::Error;
 
 use crate::config::ClipVisionConfig;
 use crate::nn::{LayerNorm, Linear, multi_head_attention};
-use crate::weights::{Init, NamedParam, ParamSource, Precision, SafetensorsFile};
+use crate::weights::{Init, NamedParam, ParamSource, Precision, SafetensorsFile, WeightStorage};
 
 /// Per-channel RGB mean of CLIP's normalisation (pixels in `[0, 1]`).
 #[allow(clippy::excessive_precision)] // the published constants, digit for digit
@@ -55,9 +55,18 @@ pub struct ClipVision {
 impl ClipVision {
     /// Loads `config` with the weights of a transformers `model.safetensors`.
     pub fn load(config: &ClipVisionConfig, weights: impl AsRef<Path>, device: &Device) -> Result<Self, Error> {
+        Self::load_stored(config, weights.as_ref(), device, WeightStorage::F32)
+    }
+
+    fn load_stored(
+        config: &ClipVisionConfig,
+        weights: &Path,
+        device: &Device,
+        storage: WeightStorage,
+    ) -> Result<Self, Error> {
         config.validate()?;
         let mut file = SafetensorsFile::open(weights)?;
-        let mut p = ParamSource::from_file(&mut file, str::to_string, device);
+        let mut p = ParamSource::from_file(&mut file, str::to_string, device).storing(storage);
         p.ignore(|k| k == "vision_model.embeddings.position_ids");
         let mut model = Self::build(config, &mut p);
         model.names = Arc::new(p.take_names());
@@ -68,15 +77,31 @@ impl ClipVision {
     /// Loads `config.json` and `model.safetensors` (or `model.fp16.safetensors`) from an
     /// `image_encoder/` folder.
     pub fn from_dir(dir: impl AsRef<Path>, device: &Device) -> Result<Self, Error> {
+        Self::from_dir_with(dir, device, WeightStorage::F32)
+    }
+
+    /// [`ClipVision::from_dir`] with linear and convolution weights held in `storage`
+    /// (arithmetic stays f32, see [`crate::UNet::from_dir_with`]).
+    pub fn from_dir_with(dir: impl AsRef<Path>, device: &Device, storage: WeightStorage) -> Result<Self, Error> {
         let dir = dir.as_ref();
         let config = ClipVisionConfig::from_file(dir.join("config.json"))?;
-        Self::load(&config, crate::weights::find_weights(dir, "model")?, device)
+        Self::load_stored(&config, &crate::weights::find_weights(dir, "model")?, device, storage)
     }
 
     /// `config` with seeded random weights.
     pub fn random(config: &ClipVisionConfig, seed: u64, device: &Device) -> Result<Self, Error> {
+        Self::random_with(config, seed, device, WeightStorage::F32)
+    }
+
+    /// [`ClipVision::random`] with the weights held in `storage`.
+    pub fn random_with(
+        config: &ClipVisionConfig,
+        seed: u64,
+        device: &Device,
+        storage: WeightStorage,
+    ) -> Result<Self, Error> {
         config.validate()?;
-        let mut p = ParamSource::random(seed, device);
+        let mut p = ParamSource::random(seed, device).storing(storage);
         let mut model = Self::build(config, &mut p);
         model.names = Arc::new(p.take_names());
         Ok(model)

@@ -14,7 +14,8 @@
 //! (apart from those multi-view defaults);
 //! weights load from f32, f16 or bf16 safetensors and every missing, unexpected or misshaped key
 //! is reported by name. Models run on any Burn device: [`default_device`] is Burn's `flex` CPU
-//! backend; the `wgpu` feature adds the GPU backend, and the `ndarray` feature Burn's older
+//! backend; the `wgpu` feature adds the GPU backend ([`ComputeDevice`] picks a device at run
+//! time, `docs/gpu.md`), and the `ndarray` feature Burn's older
 //! `ndarray` CPU backend (a second backend for the parity tests:
 //! `CARGO_TARGET_DIR=target/ndarray cargo test --release -p w3d-diffusion --features ndarray`). Convolutions run as im2col + GEMM (see [`nn::ConvAlgorithm`]).
 //!
@@ -37,6 +38,7 @@
 pub mod blocks;
 pub mod clip;
 pub mod config;
+pub mod device;
 pub mod multiview;
 pub mod nn;
 pub mod scheduler;
@@ -52,6 +54,9 @@ pub use config::{
     AUTHORS_INFERENCE_UNET_KWARGS, ClipVisionConfig, ConfigDifference, InferenceOverride, PerBlock, SchedulerConfig,
     UNetConfig, VaeConfig,
 };
+#[cfg(feature = "wgpu")]
+pub use device::gpu_device;
+pub use device::{ComputeDevice, OpenedDevice};
 pub use multiview::{
     CameraType, Conditioning, Domain, GeneratedViews, MultiViewPipeline, SampleOptions, prepare_input,
     prepare_input_on, quantize_u8, switcher_labels, task_labels,
@@ -62,22 +67,12 @@ pub use scheduler::{
 };
 pub use unet::UNet;
 pub use vae::Vae;
-pub use weights::{NamedParam, NamedValues, Precision, SafetensorsFile};
+pub use weights::{NamedParam, NamedValues, Precision, SafetensorsFile, WeightStorage};
 
 /// The default CPU device: Burn's `flex` backend (gemm-crate matmul, rayon threads), measured
 /// faster than `ndarray` on this crate's models (see `docs/benchmarks.md`).
 pub fn default_device() -> Device {
     Device::flex()
-}
-
-/// A hardware GPU through wgpu (feature `wgpu`): `None` when no adapter exists or when the
-/// only one is a software (CPU) adapter such as Mesa llvmpipe, which is far slower than
-/// [`default_device`].
-#[cfg(feature = "wgpu")]
-pub fn gpu_device() -> Option<Device> {
-    let (device, setup) = Device::wgpu_options().init_with_setup().ok()?;
-    let kind = setup.adapter.get_info().device_type;
-    (kind != burn::tensor::wgpu::wgpu::DeviceType::Cpu).then_some(device)
 }
 
 /// Burn's `ndarray` CPU backend (feature `ndarray`; deprecated in Burn 0.22): the second CPU

@@ -47,7 +47,7 @@ use crate::scheduler::{
 };
 use crate::unet::UNet;
 use crate::vae::Vae;
-use crate::weights::Precision;
+use crate::weights::{Precision, WeightStorage};
 
 /// Views generated per domain, in rig order: front, front_right, right, back, left,
 /// front_left (`w3d_core::rig::WONDER3D_VIEW_NAMES`).
@@ -409,6 +409,15 @@ impl MultiViewPipeline {
     /// `scheduler/scheduler_config.json`; `feature_extractor/` and `model_index.json` may be
     /// present and are not needed (the CLIP preprocessing is fixed).
     pub fn from_dir(dir: impl AsRef<Path>, device: &Device) -> Result<Self, Error> {
+        Self::from_dir_with(dir, device, WeightStorage::F32)
+    }
+
+    /// [`MultiViewPipeline::from_dir`] with the linear and convolution weights of every model
+    /// held as `storage` says. [`WeightStorage::AsStored`] on an f16 checkpoint (the published
+    /// weights, the shipped small model) halves the memory the models take — the real-size
+    /// UNet from 3.4 to 1.7 GiB — and changes no output; the arithmetic stays f32
+    /// (`docs/benchmarks.md` measures both).
+    pub fn from_dir_with(dir: impl AsRef<Path>, device: &Device, storage: WeightStorage) -> Result<Self, Error> {
         let dir = dir.as_ref();
         if !dir.is_dir() {
             return Err(Error::invalid(
@@ -419,9 +428,9 @@ impl MultiViewPipeline {
                 ),
             ));
         }
-        let unet = UNet::from_dir(dir.join("unet"), device)?;
-        let vae = Vae::from_dir(dir.join("vae"), device)?;
-        let clip = ClipVision::from_dir(dir.join("image_encoder"), device)?;
+        let unet = UNet::from_dir_with(dir.join("unet"), device, storage)?;
+        let vae = Vae::from_dir_with(dir.join("vae"), device, storage)?;
+        let clip = ClipVision::from_dir_with(dir.join("image_encoder"), device, storage)?;
         let scheduler = SchedulerConfig::from_file(dir.join("scheduler").join("scheduler_config.json"))?;
         Self::new(unet, vae, clip, scheduler)
     }

@@ -8,7 +8,7 @@ use burn::module::{Module, Param};
 use burn::tensor::activation::silu;
 use burn::tensor::module::{attention, conv2d, layer_norm};
 use burn::tensor::ops::{AttentionModuleOptions, ConvOptions, PadMode};
-use burn::tensor::{Tensor, s};
+use burn::tensor::{DType, FloatDType, Tensor, s};
 
 use crate::weights::{Init, ParamSource};
 
@@ -46,7 +46,7 @@ impl Linear {
         let dims = x.dims();
         let [d_in, d_out] = self.weight.dims();
         let rows = dims[..D - 1].iter().product();
-        let mut y = x.reshape([rows, d_in]).matmul(self.weight.val());
+        let mut y = x.reshape([rows, d_in]).matmul(as_f32(self.weight.val()));
         if let Some(b) = &self.bias {
             y = y + b.val().unsqueeze::<2>();
         }
@@ -54,6 +54,12 @@ impl Linear {
         out[D - 1] = d_out;
         y.reshape(out)
     }
+}
+
+/// `t` in f32: weights held in half precision ([`crate::WeightStorage::F16`]) are widened
+/// where they are used, one layer at a time, so the arithmetic is f32 whatever the storage.
+fn as_f32<const D: usize>(t: Tensor<D>) -> Tensor<D> {
+    if t.dtype() == DType::F32 { t } else { t.cast(FloatDType::F32) }
 }
 
 /// How a 2-D convolution is computed.
@@ -142,9 +148,9 @@ impl Conv2d {
         match algorithm {
             ConvAlgorithm::Auto | ConvAlgorithm::Direct => {
                 let (s, p) = (self.stride, self.padding);
-                conv2d(x, self.weight.val(), bias, ConvOptions::new([s, s], [p, p], [1, 1], 1))
+                conv2d(x, as_f32(self.weight.val()), bias, ConvOptions::new([s, s], [p, p], [1, 1], 1))
             }
-            ConvAlgorithm::Im2col => im2col_conv2d(x, self.weight.val(), bias, self.stride, self.padding),
+            ConvAlgorithm::Im2col => im2col_conv2d(x, as_f32(self.weight.val()), bias, self.stride, self.padding),
         }
     }
 }
@@ -250,6 +256,20 @@ impl LayerNorm {
 /// 32×32 latents has 6 × 1024 keys per query, and backends without a tiled kernel, such as
 /// ndarray, materialise the whole score matrix).
 pub const ATTENTION_MAX_SCORES: usize = 1 << 25;
+
+/// `f` applied to groups of at most `group` rows (first dimension) of `x` and the results
+/// concatenated: `f(x)` for an `f` that treats rows independently, with the memory of
+/// `group` rows at a time. Runs `f(x)` once when `x` has at most `group` rows.
+pub fn in_groups(x: Tensor<3>, group: usize, f: impl Fn(Tensor<3>) -> Tensor<3>) -> Tensor<3> {
+    let [rows, t, d] = x.dims();
+    let group = group.max(1);
+    if rows <= group {
+        return f(x);
+    }
+    let parts =
+        (0..rows).step_by(group).map(|start| f(x.clone().slice([start..(start + group).min(rows), 0..t, 0..d])));
+    Tensor::cat(parts.collect(), 0)
+}
 
 /// Scaled dot-product attention over token sequences: `q [b, tq, h·d]`, `k`/`v [b, tk, h·d]`
 /// split into `heads` heads, softmax scale `1/√d`; returns `[b, tq, h·d]`. Queries are

@@ -39,7 +39,7 @@ use crate::blocks::{
 };
 use crate::config::UNetConfig;
 use crate::nn::{Conv2d, GroupNorm};
-use crate::weights::{NamedParam, ParamSource, Precision, SafetensorsFile};
+use crate::weights::{NamedParam, ParamSource, Precision, SafetensorsFile, WeightStorage};
 
 /// One down level: ResNets (each optionally followed by a transformer) and a down-sampler.
 #[derive(Module, Debug)]
@@ -82,24 +82,44 @@ impl UNet {
     /// Loads `config` with the weights of a diffusers `diffusion_pytorch_model.safetensors`
     /// (f32, f16 or bf16). Fails listing every missing, unexpected or misshaped key.
     pub fn load(config: &UNetConfig, weights: impl AsRef<Path>, device: &Device) -> Result<Self, Error> {
+        Self::load_stored(config, weights.as_ref(), device, WeightStorage::F32)
+    }
+
+    fn load_stored(
+        config: &UNetConfig,
+        weights: &Path,
+        device: &Device,
+        storage: WeightStorage,
+    ) -> Result<Self, Error> {
         config.validate()?;
         let mut file = SafetensorsFile::open(weights)?;
-        let p = ParamSource::from_file(&mut file, rename_legacy_unet_key, device);
+        let p = ParamSource::from_file(&mut file, rename_legacy_unet_key, device).storing(storage);
         Self::build_checked(config, p)
     }
 
     /// Loads `config.json` and `diffusion_pytorch_model.safetensors` (or its `.fp16.safetensors`
     /// variant) from a diffusers checkpoint directory's `unet/` folder.
     pub fn from_dir(dir: impl AsRef<Path>, device: &Device) -> Result<Self, Error> {
+        Self::from_dir_with(dir, device, WeightStorage::F32)
+    }
+
+    /// [`UNet::from_dir`] with the linear and convolution weights held as `storage` says
+    /// ([`WeightStorage`]: f16 halves the model's memory; the arithmetic stays f32).
+    pub fn from_dir_with(dir: impl AsRef<Path>, device: &Device, storage: WeightStorage) -> Result<Self, Error> {
         let dir = dir.as_ref();
         let config = UNetConfig::from_file(dir.join("config.json"))?;
-        Self::load(&config, crate::weights::find_weights(dir, "diffusion_pytorch_model")?, device)
+        Self::load_stored(&config, &crate::weights::find_weights(dir, "diffusion_pytorch_model")?, device, storage)
     }
 
     /// `config` with seeded random weights (for shape, speed and memory checks at real sizes).
     pub fn random(config: &UNetConfig, seed: u64, device: &Device) -> Result<Self, Error> {
+        Self::random_with(config, seed, device, WeightStorage::F32)
+    }
+
+    /// [`UNet::random`] with the weights held in `storage` (see [`UNet::from_dir_with`]).
+    pub fn random_with(config: &UNetConfig, seed: u64, device: &Device, storage: WeightStorage) -> Result<Self, Error> {
         config.validate()?;
-        let mut p = ParamSource::random(seed, device);
+        let mut p = ParamSource::random(seed, device).storing(storage);
         let mut unet = Self::build(config, &mut p)?;
         unet.names = Arc::new(p.take_names());
         Ok(unet)

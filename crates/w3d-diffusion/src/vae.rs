@@ -12,7 +12,7 @@ use w3d_core::Error;
 use crate::blocks::{Downsample, ResnetBlock, ResnetShape, Upsample};
 use crate::config::VaeConfig;
 use crate::nn::{Conv2d, GroupNorm, Linear, multi_head_attention};
-use crate::weights::{NamedParam, ParamSource, Precision, SafetensorsFile};
+use crate::weights::{NamedParam, ParamSource, Precision, SafetensorsFile, WeightStorage};
 
 /// GroupNorm epsilon used everywhere in the VAE.
 const VAE_EPS: f64 = 1e-6;
@@ -109,9 +109,13 @@ impl Vae {
     /// Loads `config` with the weights of a diffusers `diffusion_pytorch_model.safetensors`.
     /// Legacy attention names (`query`, `key`, `value`, `proj_attn`) are accepted.
     pub fn load(config: &VaeConfig, weights: impl AsRef<Path>, device: &Device) -> Result<Self, Error> {
+        Self::load_stored(config, weights.as_ref(), device, WeightStorage::F32)
+    }
+
+    fn load_stored(config: &VaeConfig, weights: &Path, device: &Device, storage: WeightStorage) -> Result<Self, Error> {
         config.validate()?;
         let mut file = SafetensorsFile::open(weights)?;
-        let mut p = ParamSource::from_file(&mut file, rename_legacy_vae_key, device);
+        let mut p = ParamSource::from_file(&mut file, rename_legacy_vae_key, device).storing(storage);
         let mut vae = Self::build(config, &mut p);
         vae.names = Arc::new(p.take_names());
         p.finish()?;
@@ -121,15 +125,26 @@ impl Vae {
     /// Loads `config.json` and `diffusion_pytorch_model.safetensors` (or its `.fp16.safetensors`
     /// variant) from a `vae/` folder.
     pub fn from_dir(dir: impl AsRef<Path>, device: &Device) -> Result<Self, Error> {
+        Self::from_dir_with(dir, device, WeightStorage::F32)
+    }
+
+    /// [`Vae::from_dir`] with linear and convolution weights held in `storage` (arithmetic
+    /// stays f32, see [`crate::UNet::from_dir_with`]).
+    pub fn from_dir_with(dir: impl AsRef<Path>, device: &Device, storage: WeightStorage) -> Result<Self, Error> {
         let dir = dir.as_ref();
         let config = VaeConfig::from_file(dir.join("config.json"))?;
-        Self::load(&config, crate::weights::find_weights(dir, "diffusion_pytorch_model")?, device)
+        Self::load_stored(&config, &crate::weights::find_weights(dir, "diffusion_pytorch_model")?, device, storage)
     }
 
     /// `config` with seeded random weights.
     pub fn random(config: &VaeConfig, seed: u64, device: &Device) -> Result<Self, Error> {
+        Self::random_with(config, seed, device, WeightStorage::F32)
+    }
+
+    /// [`Vae::random`] with the weights held in `storage`.
+    pub fn random_with(config: &VaeConfig, seed: u64, device: &Device, storage: WeightStorage) -> Result<Self, Error> {
         config.validate()?;
-        let mut p = ParamSource::random(seed, device);
+        let mut p = ParamSource::random(seed, device).storing(storage);
         let mut vae = Self::build(config, &mut p);
         vae.names = Arc::new(p.take_names());
         Ok(vae)

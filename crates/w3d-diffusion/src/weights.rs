@@ -11,7 +11,7 @@ use std::io::{Read, Seek, SeekFrom};
 use std::path::{Path, PathBuf};
 
 use burn::module::{Module, ModuleVisitor, Param, ParamId};
-use burn::tensor::{Device, Tensor, TensorData};
+use burn::tensor::{DType, Device, Tensor, TensorCreationOptions, TensorData};
 use safetensors::tensor::{Dtype, Metadata, TensorInfo};
 use w3d_core::Error;
 
@@ -193,6 +193,8 @@ pub(crate) struct ParamSource<'a> {
     fresh: Option<(u64, FreshKeys<'a>)>,
     /// Accept `conv_in.weight` with fewer input channels, widened with zeros.
     widen_conv_in: bool,
+    /// How linear and convolution weights are held in memory.
+    storage: WeightStorage,
 }
 
 /// Which keys a source may lack (see [`ParamSource::with_fresh`]).
@@ -225,6 +227,7 @@ impl<'a> ParamSource<'a> {
             names: Vec::new(),
             fresh: None,
             widen_conv_in: false,
+            storage: WeightStorage::F32,
         }
     }
 
@@ -239,6 +242,7 @@ impl<'a> ParamSource<'a> {
             names: Vec::new(),
             fresh: None,
             widen_conv_in: false,
+            storage: WeightStorage::F32,
         }
     }
 
@@ -254,6 +258,40 @@ impl<'a> ParamSource<'a> {
     pub(crate) fn with_fresh(mut self, seed: u64, fresh: impl Fn(&str) -> bool + 'a) -> Self {
         self.fresh = Some((seed ^ 0x5DEE_CE66_D1CE_4E5B, Box::new(fresh)));
         self
+    }
+
+    /// Holds linear and convolution weights as `storage` says (each converted as it is read,
+    /// so a model never exists in f32 as a whole); biases, norms and embeddings stay f32.
+    pub(crate) fn storing(mut self, storage: WeightStorage) -> Self {
+        self.storage = storage;
+        self
+    }
+
+    /// Whether the source holds `key` in f16.
+    fn stored_as_f16(&self, key: &str) -> bool {
+        match &self.source {
+            Source::File { file, renamed, .. } => {
+                renamed.get(key).and_then(|k| file.tensors.get(k)).is_some_and(|t| t.dtype == Dtype::F16)
+            }
+            Source::Values { .. } | Source::Random { .. } => false,
+        }
+    }
+
+    /// The weight tensor (linear or convolution) of `key` in its storage format.
+    fn weight_tensor<const D: usize>(&self, key: &str, values: Vec<f32>, shape: [usize; D]) -> Tensor<D> {
+        let half = match self.storage {
+            WeightStorage::F32 => false,
+            WeightStorage::F16 => true,
+            WeightStorage::AsStored => self.stored_as_f16(key),
+        };
+        match half {
+            false => Tensor::from_data(TensorData::new(values, shape), &self.device),
+            true => {
+                let halves: Vec<half::f16> = values.into_iter().map(half::f16::from_f32).collect();
+                let options = TensorCreationOptions::new(self.device.clone()).with_dtype(DType::F16);
+                Tensor::from_data(TensorData::new(halves, shape), options)
+            }
+        }
     }
 
     /// Accepts a `conv_in.weight` with fewer input channels, widened with zeros.
@@ -341,6 +379,8 @@ impl<'a> ParamSource<'a> {
     /// before the model can run) the placeholder has every side 1.
     pub(crate) fn param<const D: usize>(&mut self, key: &str, shape: [usize; D], init: Init) -> Param<Tensor<D>> {
         let tensor = match self.values(key, &shape, init) {
+            // 4-D parameters are convolution kernels.
+            Some(values) if D == 4 => self.weight_tensor(key, values, shape),
             Some(values) => Tensor::from_data(TensorData::new(values, shape), &self.device),
             None => Tensor::zeros([1; D], &self.device),
         };
@@ -369,7 +409,7 @@ impl<'a> ParamSource<'a> {
                         t[i * d_out + o] = w[o * d_in + i];
                     }
                 }
-                Tensor::from_data(TensorData::new(t, [d_in, d_out]), &self.device)
+                self.weight_tensor(key, t, [d_in, d_out])
             }
             None => Tensor::zeros([1, 1], &self.device),
         };
@@ -506,6 +546,25 @@ pub(crate) fn write_checkpoint(
     precision: Precision,
 ) -> Result<(), Error> {
     write_checkpoint_named(dir, weights_file, tensors, "config.json", config, precision)
+}
+
+/// How a loaded model holds its linear and convolution weights (over 99.9 % of its
+/// parameters) in memory; biases, norms and embeddings stay f32, and every layer widens its
+/// weight to f32 when it runs, so the arithmetic is f32 whatever the storage.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum WeightStorage {
+    /// f32: the values of an f32 checkpoint exactly, 4 bytes each. What training needs (the
+    /// optimizer updates the stored values), so the default of the `from_dir` loaders.
+    #[default]
+    F32,
+    /// f16 for every weight: half the memory; weights of an f32 checkpoint are rounded to the
+    /// nearest f16 (a relative change of at most 2⁻¹¹).
+    F16,
+    /// As the checkpoint stores each weight: f16 ones stay f16 (exact, and half the memory:
+    /// the published Wonder3D weights and the shipped small model are f16), f32 and bf16 ones
+    /// become f32. Lossless, so what generation uses (`wonder3d::Generator`).
+    AsStored,
 }
 
 /// The number format weights are written in.

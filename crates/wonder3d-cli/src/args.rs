@@ -58,6 +58,16 @@ pub enum CameraArg {
     Persp,
 }
 
+/// `--device`: where the diffusion model runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum DeviceArg {
+    /// The CPU, all cores (Burn's flex backend).
+    Cpu,
+    /// The GPU through wgpu: Vulkan, Metal or DirectX 12 (a build with the `wgpu` feature,
+    /// docs/gpu.md).
+    Wgpu,
+}
+
 /// `--scheduler`: the sampling algorithm of generation.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum SchedulerArg {

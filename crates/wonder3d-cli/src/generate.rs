@@ -1,5 +1,5 @@
 //! `wonder3d generate IMAGE --weights DIR --out VIEWS_DIR [--camera ortho|persp]
-//! [--scheduler ddim|dpmpp-2m] [--steps N] [--guidance G] [--eta E] [--seed S]
+//! [--scheduler ddim|dpmpp-2m] [--steps N] [--guidance G] [--eta E] [--seed S] [--device cpu|wgpu]
 //! [--min-confidence C]`: the 6 normal + 6 colour views of a photo or RGBA image from the
 //! Wonder3D++ multi-view diffusion model, written as a view-set folder with a contact sheet.
 //! The image is prepared as `wonder3d prepare` does first.
@@ -8,7 +8,7 @@ use std::path::PathBuf;
 
 use wonder3d::{Error, Result};
 
-use crate::args::{CameraArg, SchedulerArg};
+use crate::args::{CameraArg, DeviceArg, SchedulerArg};
 
 /// The model directory and its sampling options, shared by `generate` and `run`.
 #[derive(clap::Args)]
@@ -29,6 +29,9 @@ pub struct SamplingArgs {
     /// Camera type of the generated views.
     #[arg(long, value_enum, default_value_t = CameraArg::Ortho)]
     pub camera: CameraArg,
+    /// Where the model runs: `wgpu` needs a build with the `wgpu` feature (docs/gpu.md).
+    #[arg(long, value_enum, default_value_t = DeviceArg::Cpu)]
+    pub device: DeviceArg,
     /// Sampling algorithm.
     #[arg(long, value_enum, default_value_t = SchedulerArg::Ddim)]
     pub scheduler: SchedulerArg,
@@ -83,10 +86,20 @@ pub struct GenerateArgs {
 mod with_model {
     use super::*;
     use crate::progress;
-    use wonder3d::{CameraType, Generator, SampleOptions, SamplerKind};
+    use wonder3d::{CameraType, ComputeDevice, Generator, SampleOptions, SamplerKind};
 
-    /// Loads the model in `weights` with the sampling options of `args`.
+    /// Loads the model in `weights` onto the device of `args`, with its sampling options. The
+    /// device opens first, so a missing GPU backend is named before the weights are read; a
+    /// GPU is named on stderr (with a warning when it is a software adapter).
     pub fn load(weights: &std::path::Path, args: &SamplingArgs) -> Result<Generator> {
+        let device = match args.device {
+            DeviceArg::Cpu => ComputeDevice::Cpu,
+            DeviceArg::Wgpu => ComputeDevice::Wgpu,
+        }
+        .open()?;
+        if device.kind != ComputeDevice::Cpu {
+            eprintln!("device: {}", device.description);
+        }
         let camera = match args.camera {
             CameraArg::Ortho => CameraType::Orthographic,
             CameraArg::Persp => CameraType::Perspective,
@@ -103,7 +116,9 @@ mod with_model {
             camera,
             seed: args.seed,
         };
-        Ok(Generator::load(weights)?.with_options(options).with_prepare_options(args.prepare_options()?))
+        Ok(Generator::load_on(weights, device.device)?
+            .with_options(options)
+            .with_prepare_options(args.prepare_options()?))
     }
 
     /// Runs `wonder3d generate`.

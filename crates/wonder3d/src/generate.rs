@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use w3d_diffusion::{Device, MultiViewPipeline, SampleOptions, prepare_input};
+use w3d_diffusion::{Device, MultiViewPipeline, SampleOptions, WeightStorage, prepare_input};
 use w3d_photo::PrepareOptions;
 
 use crate::pipeline::{Progress, Stage};
@@ -69,9 +69,24 @@ impl Generator {
         Generator::load_on(dir, w3d_diffusion::default_device())
     }
 
-    /// Loads a checkpoint directory onto `device`.
+    /// Loads a checkpoint directory onto `device` (weights held in the checkpoint's own
+    /// precision, [`WeightStorage::AsStored`](w3d_diffusion::WeightStorage)): a Burn device, e.g. the GPU of
+    /// [`ComputeDevice::Wgpu`](crate::ComputeDevice)`.open()?.device` (feature `wgpu`).
+    ///
+    /// ```no_run
+    /// # fn main() -> wonder3d::Result<()> {
+    /// use wonder3d::{ComputeDevice, Generator};
+    ///
+    /// let gpu = ComputeDevice::Wgpu.open()?; // an error naming the fix without the `wgpu` feature
+    /// eprintln!("generating on {}", gpu.description);
+    /// let generator = Generator::load_on("ckpts", gpu.device)?;
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn load_on(dir: impl AsRef<Path>, device: Device) -> Result<Generator> {
-        let pipeline = MultiViewPipeline::from_dir(dir, &device)?;
+        // Weights stay in the checkpoint's precision: f16 checkpoints take half the memory,
+        // exactly the same outputs.
+        let pipeline = MultiViewPipeline::from_dir_with(dir, &device, WeightStorage::AsStored)?;
         Ok(Generator { pipeline, device, options: SampleOptions::default(), prepare: PrepareOptions::default() })
     }
 

@@ -35,15 +35,47 @@ pub fn max_abs<const D: usize>(a: Tensor<D>) -> f32 {
 }
 
 /// The backends every parity test runs on: flex (the default), with the `ndarray` feature
-/// Burn's ndarray backend, and with the `wgpu` feature on a host with a hardware GPU, wgpu.
+/// Burn's ndarray backend, and with the `wgpu` feature wgpu on a hardware GPU, or on any
+/// adapter (Mesa's software lavapipe included) when `W3D_TEST_SOFTWARE_GPU=1`, as
+/// `cargo xtask gpu-check` sets it.
 pub fn test_devices() -> Vec<(&'static str, Device)> {
     #[allow(unused_mut)]
     let mut devices = vec![("flex", w3d_diffusion::default_device())];
     #[cfg(feature = "ndarray")]
     devices.push(("ndarray", w3d_diffusion::ndarray_device()));
     #[cfg(feature = "wgpu")]
-    if let Some(gpu) = w3d_diffusion::gpu_device() {
+    if let Some(gpu) = wgpu_test_device() {
         devices.push(("wgpu", gpu));
     }
     devices
+}
+
+/// The wgpu device the tests use: a hardware GPU, or any adapter when
+/// `W3D_TEST_SOFTWARE_GPU=1`.
+#[cfg(feature = "wgpu")]
+pub fn wgpu_test_device() -> Option<Device> {
+    let opened = w3d_diffusion::ComputeDevice::Wgpu.open().ok()?;
+    let software_ok = std::env::var("W3D_TEST_SOFTWARE_GPU").is_ok_and(|v| v == "1");
+    (!opened.software || software_ok).then_some(opened.device)
+}
+
+/// Largest absolute difference between two value lists of the same length.
+pub fn max_abs_vec(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len(), "lengths differ");
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max)
+}
+
+/// A red-to-blue shaded disc on transparent background, `side`² RGBA.
+pub fn disc_image(side: u32) -> w3d_core::Image {
+    let mut data = Vec::with_capacity((side * side * 4) as usize);
+    let c = side as f32 / 2.0;
+    for y in 0..side {
+        for x in 0..side {
+            let (dx, dy) = ((x as f32 + 0.5 - c) / c, (y as f32 + 0.5 - c) / c);
+            let inside = dx * dx + dy * dy < 0.6;
+            let t = y as f32 / side as f32;
+            data.extend_from_slice(&[0.9 - 0.6 * t, 0.3, 0.2 + 0.6 * t, if inside { 1.0 } else { 0.0 }]);
+        }
+    }
+    w3d_core::Image::new(side, side, 4, data).unwrap()
 }

@@ -45,3 +45,24 @@ fn im2col_convolution_of_a_known_image() {
     assert_eq!(y[5], 45.0, "0+1+2+4+5+6+8+9+10");
     assert_eq!(y[0], 10.0, "0+1+4+5");
 }
+
+/// `nn::in_groups` (the memory-bounded feed-forward of the transformer blocks) gives what the
+/// function gives on the whole batch, for groups that divide the rows and groups that do not.
+#[test]
+fn row_groups_give_the_whole_batch_result() {
+    for (name, device) in test_devices() {
+        let x = gaussian_noise([7, 5, 6], 3, &device);
+        let w = gaussian_noise([6, 4], 4, &device);
+        let f = |t: Tensor<3>| {
+            let [n, tokens, _] = t.dims();
+            burn::tensor::activation::gelu(t.reshape([n * tokens, 6]).matmul(w.clone())).reshape([n, tokens, 4])
+        };
+        let whole = f(x.clone());
+        for group in [0, 1, 2, 3, 7, 9] {
+            let grouped = w3d_diffusion::nn::in_groups(x.clone(), group, f);
+            let err = max_abs_diff(grouped, whole.clone());
+            assert!(err <= 1e-6, "{name}: groups of {group}: {err}");
+        }
+        assert!(max_abs(whole) > 0.1);
+    }
+}

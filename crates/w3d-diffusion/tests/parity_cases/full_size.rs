@@ -1,7 +1,7 @@
 //! The real-size Wonder3D base configs parse; the real-size models instantiate and run one
 //! forward within 8 GiB peak memory, and one guided denoising step of the real-size
 //! multi-view UNet (12 images at 32×32 latents, 24 UNet images with guidance) is timed with its
-//! peak memory on each test backend (ignored by default: slow; run with
+//! peak memory on each test backend, with f32 and with f16 weight storage (ignored by default: slow; run with
 //! `cargo test --release -p w3d-diffusion --test parity full_size:: -- --ignored --nocapture --test-threads 1`).
 
 use std::path::PathBuf;
@@ -10,7 +10,7 @@ use std::time::Instant;
 use burn::module::Module;
 use w3d_diffusion::{
     ClipVision, ClipVisionConfig, Conditioning, DdimScheduler, MultiViewPipeline, SampleOptions, SchedulerConfig,
-    Tensor, UNet, UNetConfig, Vae, VaeConfig, gaussian_noise,
+    Tensor, UNet, UNetConfig, Vae, VaeConfig, WeightStorage, gaussian_noise,
 };
 
 use crate::common::test_devices;
@@ -93,14 +93,18 @@ fn reset_peak_rss() {
 #[ignore = "slow: real-size multi-view UNet (~0.9 G parameters), one guided step per backend"]
 fn real_size_multiview_guided_step() {
     let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
-    for (name, device) in test_devices() {
+    // f16 first: memory freed by a run stays with the allocator and would count in the next.
+    let storages = [WeightStorage::F16, WeightStorage::F32];
+    for ((name, device), storage) in test_devices().into_iter().flat_map(|d| storages.map(|s| (d.clone(), s))) {
+        let name = format!("{name}, {storage:?} weights");
         let t = Instant::now();
-        let unet = UNet::random(&UNetConfig::from_file(config("unet_mv/config.json")).unwrap(), 1, &device).unwrap();
+        let unet_config = UNetConfig::from_file(config("unet_mv/config.json")).unwrap();
+        let unet = UNet::random_with(&unet_config, 1, &device, storage).unwrap();
         let params = unet.num_params();
-        let vae = Vae::random(&VaeConfig::from_file(config("vae/config.json")).unwrap(), 2, &device).unwrap();
-        let clip =
-            ClipVision::random(&ClipVisionConfig::from_file(config("image_encoder/config.json")).unwrap(), 3, &device)
-                .unwrap();
+        let vae =
+            Vae::random_with(&VaeConfig::from_file(config("vae/config.json")).unwrap(), 2, &device, storage).unwrap();
+        let clip_config = ClipVisionConfig::from_file(config("image_encoder/config.json")).unwrap();
+        let clip = ClipVision::random_with(&clip_config, 3, &device, storage).unwrap();
         let scheduler = SchedulerConfig::from_file(config("scheduler/scheduler_config.json")).unwrap();
         let pipeline = MultiViewPipeline::new(unet, vae, clip, scheduler).unwrap();
         println!(

@@ -181,3 +181,36 @@ fn demo_from_image_goes_from_a_photo_to_a_scored_mesh() {
     let err = String::from_utf8_lossy(&run.stderr);
     assert!(!run.status.success() && err.contains("--from-image"), "{err}");
 }
+
+/// A build without the `wgpu` feature names the feature and its docs for `--device wgpu`
+/// before reading the weights or writing anything; an unknown device lists the choices.
+#[test]
+#[cfg(not(feature = "wgpu"))]
+fn a_gpu_device_needs_the_wgpu_build() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("disc.png");
+    write_input(&input);
+    let out = dir.path().join("views");
+    let missing = dir.path().join("no-model");
+    for (weights, device, expected) in [
+        (missing.to_str().unwrap().to_string(), "wgpu", "`wgpu` feature"),
+        (tiny_weights(), "wgpu", "docs/gpu.md"),
+        (tiny_weights(), "tpu", "cpu, wgpu"),
+    ] {
+        let run = wonder3d(&[
+            "generate",
+            input.to_str().unwrap(),
+            "--weights",
+            &weights,
+            "--out",
+            out.to_str().unwrap(),
+            "--device",
+            device,
+            "--quiet",
+        ]);
+        assert!(!run.status.success());
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert!(err.contains(expected) && !err.contains("no-model"), "{err}");
+        assert!(!out.exists(), "nothing is written");
+    }
+}
