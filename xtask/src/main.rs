@@ -268,6 +268,50 @@ fn cpu_model() -> String {
         .unwrap_or_else(|| "unknown CPU".into())
 }
 
+/// The UNet forward rows of the diffusion suite as GFLOP/s and as a fraction of the f32 GEMM
+/// peak measured now on this machine (`xtask/python/unet_flops.py`: the forward's FLOPs by
+/// torch's counter, `torch.mm` at 2048²–4096²), added to `rows` (issue #20, item 6).
+fn gemm_fraction(rows: &mut Vec<serde_json::Value>) -> Result<(), String> {
+    let root = workspace_root();
+    let script = "xtask/python/unet_flops.py";
+    let output = Command::new(diffusion_python()?)
+        .current_dir(&root)
+        .arg(script)
+        .arg(&root)
+        .output()
+        .map_err(|e| format!("cannot run {script}: {e}"))?;
+    if !output.status.success() {
+        return Err(format!("{script} failed: {}", String::from_utf8_lossy(&output.stderr)));
+    }
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    let v: serde_json::Value = stdout
+        .lines()
+        .rev()
+        .find_map(|l| serde_json::from_str(l).ok())
+        .ok_or_else(|| format!("{script} printed no JSON: {stdout}"))?;
+    let gflop = v["unet_forward_gflop"].as_f64().ok_or(format!("{script}: no unet_forward_gflop"))?;
+    let peak = v["sgemm_gflops"]
+        .as_object()
+        .and_then(|m| m.values().filter_map(|x| x.as_f64()).reduce(f64::max))
+        .ok_or(format!("{script}: no sgemm_gflops"))?;
+    let forwards: Vec<(String, f64)> = rows
+        .iter()
+        .filter_map(|r| {
+            let id = r["id"].as_str()?;
+            (id.starts_with("unet_forward_b2_32x32/") && !id.contains(" / "))
+                .then_some((id.to_string(), r["median_ms"].as_f64()?))
+        })
+        .collect();
+    println!("UNet forward: {gflop:.1} GFLOP; f32 GEMM peak on this machine {peak:.0} GFLOP/s");
+    rows.push(serde_json::json!({ "id": "sgemm_peak", "gflops": peak, "unet_forward_gflop": gflop, "torch": v }));
+    for (id, ms) in forwards {
+        let gflops = gflop / (ms / 1e3);
+        println!("{id}: {gflops:.0} GFLOP/s = {:.2} of the GEMM peak", gflops / peak);
+        rows.push(serde_json::json!({ "id": format!("{id} / sgemm peak"), "ratio": gflops / peak, "gflops": gflops }));
+    }
+    Ok(())
+}
+
 /// Runs `script` (torch CPU, the same work as a burn benchmark suite) and adds each of its
 /// JSON result lines, plus the burn / torch ratio of every burn row of the same benchmark
 /// (`<group>/<backend>` against `<group>/torch`), to `rows`.
@@ -332,7 +376,10 @@ fn bench(suite: &str, criterion_args: &[String]) -> Result<(), String> {
         rows.push(serde_json::json!({ "id": id, "median_ms": ms("median"), "mean_ms": ms("mean") }));
     }
     match suite {
-        "diffusion" => torch_comparison("xtask/python/bench_diffusion_torch.py", &mut rows)?,
+        "diffusion" => {
+            torch_comparison("xtask/python/bench_diffusion_torch.py", &mut rows)?;
+            gemm_fraction(&mut rows)?;
+        }
         "train" => torch_comparison("xtask/python/bench_train_torch.py", &mut rows)?,
         _ => {}
     }
