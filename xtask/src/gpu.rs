@@ -137,7 +137,7 @@ pub fn check() -> Result<(), String> {
     let (gpu_dir, gpu_s) = generate("wgpu")?;
     let (cpu_dir, cpu_s) = generate("cpu")?;
     let (mut levels, mut mask_pixels, mut mask_total) = (0u32, 0usize, 0usize);
-    for view in ["front", "front_right", "right", "back", "left", "front_left"] {
+    for view in wonder3d::core::rig::WONDER3D_VIEW_NAMES {
         for kind in ["colour", "normal", "mask"] {
             let file = format!("{kind}_{view}.png");
             let read = |dir: &Path| wonder3d::Image::read_png(dir.join(&file)).map_err(|e| e.to_string());
@@ -168,9 +168,7 @@ pub fn check() -> Result<(), String> {
 
     // 3. The benchmark runs end to end (tiny checkpoint; the real size is for a real GPU).
     let bench_json = out.join("bench-tiny.json");
-    run(cargo(&["bench", "--workspace", "--features", FEATURES, "--bench", "gpu", "--"])
-        .args(["--model", "tiny", "--json"])
-        .arg(&bench_json))?;
+    bench(&["--model".into(), "tiny".into(), "--json".into(), bench_json.display().to_string()])?;
 
     let summary = serde_json::json!({
         "adapter": adapter,

@@ -272,23 +272,8 @@ fn cpu_model() -> String {
 /// peak measured now on this machine (`xtask/python/unet_flops.py`: the forward's FLOPs by
 /// torch's counter, `torch.mm` at 2048²–4096²), added to `rows` (issue #20, item 6).
 fn gemm_fraction(rows: &mut Vec<serde_json::Value>) -> Result<(), String> {
-    let root = workspace_root();
     let script = "xtask/python/unet_flops.py";
-    let output = Command::new(diffusion_python()?)
-        .current_dir(&root)
-        .arg(script)
-        .arg(&root)
-        .output()
-        .map_err(|e| format!("cannot run {script}: {e}"))?;
-    if !output.status.success() {
-        return Err(format!("{script} failed: {}", String::from_utf8_lossy(&output.stderr)));
-    }
-    let stdout = String::from_utf8_lossy(&output.stdout);
-    let v: serde_json::Value = stdout
-        .lines()
-        .rev()
-        .find_map(|l| serde_json::from_str(l).ok())
-        .ok_or_else(|| format!("{script} printed no JSON: {stdout}"))?;
+    let v = python_json(script)?.pop().expect("python_json returns at least one object");
     let gflop = v["unet_forward_gflop"].as_f64().ok_or(format!("{script}: no unet_forward_gflop"))?;
     let peak = v["sgemm_gflops"]
         .as_object()
@@ -312,27 +297,34 @@ fn gemm_fraction(rows: &mut Vec<serde_json::Value>) -> Result<(), String> {
     Ok(())
 }
 
-/// Runs `script` (torch CPU, the same work as a burn benchmark suite) and adds each of its
-/// JSON result lines, plus the burn / torch ratio of every burn row of the same benchmark
-/// (`<group>/<backend>` against `<group>/torch`), to `rows`.
-fn torch_comparison(script: &str, rows: &mut Vec<serde_json::Value>) -> Result<(), String> {
+/// Runs the peer script `script` (relative to the workspace root, which it gets as its
+/// argument) with the torch + diffusers Python and returns every JSON object it printed, one
+/// per line (at least one).
+fn python_json(script: &str) -> Result<Vec<serde_json::Value>, String> {
     let root = workspace_root();
     let output = Command::new(diffusion_python()?)
         .current_dir(&root)
         .arg(script)
         .arg(&root)
         .output()
-        .map_err(|e| format!("cannot run the torch benchmark {script}: {e}"))?;
+        .map_err(|e| format!("cannot run the peer script {script}: {e}"))?;
     if !output.status.success() {
-        return Err(format!("torch benchmark {script} failed: {}", String::from_utf8_lossy(&output.stderr)));
+        return Err(format!("peer script {script} failed: {}", String::from_utf8_lossy(&output.stderr)));
     }
     let stdout = String::from_utf8_lossy(&output.stdout);
     let results: Vec<serde_json::Value> =
         stdout.lines().filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok()).collect();
     if results.is_empty() {
-        return Err(format!("torch benchmark {script} printed no JSON: {stdout}"));
+        return Err(format!("peer script {script} printed no JSON: {stdout}"));
     }
-    for torch in results {
+    Ok(results)
+}
+
+/// Runs `script` (torch CPU, the same work as a burn benchmark suite) and adds each of its
+/// JSON result lines, plus the burn / torch ratio of every burn row of the same benchmark
+/// (`<group>/<backend>` against `<group>/torch`), to `rows`.
+fn torch_comparison(script: &str, rows: &mut Vec<serde_json::Value>) -> Result<(), String> {
+    for torch in python_json(script)? {
         let id = torch["id"].as_str().ok_or("torch benchmark: no id")?.to_string();
         let torch_ms = torch["median_ms"].as_f64().ok_or("torch benchmark: no median_ms")?;
         let group = id.strip_suffix("/torch").ok_or("torch benchmark: an id ending in /torch")?.to_string();

@@ -137,22 +137,16 @@ fn run() -> Result<(), String> {
     eprintln!("device: {}", opened.description);
     let sync = |d: &Device| d.sync().map_err(|e| format!("device sync: {e:?}"));
     let mut phases: Vec<Phase> = Vec::new();
-    let mut peak = 0u64;
-    let note = |peak: &mut u64| {
-        if let Some(r) = reserved(&device) {
-            *peak = (*peak).max(r);
-        }
-    };
+    // The largest reservation seen so far (`None` on a backend that reports none).
+    let mut peak: Option<u64> = None;
+    let note = |peak: &mut Option<u64>| *peak = (*peak).max(reserved(&device));
 
     let t = Instant::now();
     let (pipeline, what) = build(&args.model, &device)?;
     sync(&device)?;
+    note(&mut peak);
     let unet_params = pipeline.unet().num_params();
-    phases.push(Phase {
-        name: "build / load models".into(),
-        seconds: t.elapsed().as_secs_f64(),
-        reserved_peak: reserved(&device),
-    });
+    phases.push(Phase { name: "build / load models".into(), seconds: t.elapsed().as_secs_f64(), reserved_peak: peak });
     let [_, c, h, w] = pipeline.noise_shape();
     eprintln!(
         "model: {what}, MV UNet {:.1} M parameters, latents 12 x {c} x {h} x {w}, views {}²",
@@ -171,7 +165,7 @@ fn run() -> Result<(), String> {
     phases.push(Phase {
         name: "condition (CLIP + VAE encode)".into(),
         seconds: t.elapsed().as_secs_f64(),
-        reserved_peak: Some(peak),
+        reserved_peak: peak,
     });
 
     let one_step = SampleOptions { steps: 1, ..SampleOptions::default() };
@@ -181,11 +175,8 @@ fn run() -> Result<(), String> {
         let x =
             pipeline.sample_from(noise, &cond, &one_step, &mut |_, _| note(&mut peak)).map_err(|e| e.to_string())?;
         let _ = x.into_data();
-        phases.push(Phase {
-            name: name.into(),
-            seconds: t.elapsed().as_secs_f64(),
-            reserved_peak: reserved(&device).map(|r| r.max(peak)),
-        });
+        note(&mut peak);
+        phases.push(Phase { name: name.into(), seconds: t.elapsed().as_secs_f64(), reserved_peak: peak });
     }
 
     for &(sampler, steps) in &args.runs {
@@ -208,7 +199,7 @@ fn run() -> Result<(), String> {
         phases.push(Phase {
             name: format!("generation: {steps} {label} steps + decode of 12 views"),
             seconds,
-            reserved_peak: Some(peak),
+            reserved_peak: peak,
         });
     }
 
