@@ -3,6 +3,11 @@
 Same config (crates/w3d-diffusion/configs/wonder3d/unet/config.json), random weights, batch
 2 x 8 x 32 x 32, one timestep, a 1-token 768-d context and 14-d class labels; f32, all CPU
 threads. Prints one JSON object: median and all times in ms.
+
+Then the attention of the multi-view UNet's guided step at its five shapes (the same list as
+`ATTENTION_SHAPES` in crates/w3d-diffusion/benches/diffusion.rs): torch's
+`scaled_dot_product_attention` on [batch, heads, tokens, head_dim] views of token-major
+tensors, one JSON object per shape.
 """
 
 import json
@@ -37,3 +42,34 @@ print(json.dumps({
     "torch": torch.__version__,
     "threads": torch.get_num_threads(),
 }))
+
+# name, batch, tokens (queries = keys), channels; 8 heads everywhere.
+ATTENTION_SHAPES = [
+    ("mv32", 4, 6144, 320),
+    ("mv16", 4, 3072, 640),
+    ("mv8", 4, 1536, 1280),
+    ("cd32", 12, 2048, 320),
+    ("cd16", 12, 512, 640),
+]
+for name, batch, tokens, channels in ATTENTION_SHAPES:
+    heads = 8
+    def split(t):
+        return t.view(batch, tokens, heads, channels // heads).transpose(1, 2)
+    q, k, v = (torch.randn(batch, tokens, channels) for _ in range(3))
+    def attention():
+        o = torch.nn.functional.scaled_dot_product_attention(split(q), split(k), split(v))
+        return o.transpose(1, 2).reshape(batch, tokens, channels)
+    attention()
+    times = []
+    for _ in range(runs):
+        t = time.perf_counter()
+        attention()
+        times.append((time.perf_counter() - t) * 1e3)
+    print(json.dumps({
+        "id": f"attention_{name}/torch",
+        "median_ms": statistics.median(times),
+        "times_ms": times,
+        "gflop": 4 * batch * tokens * tokens * channels / 1e9,
+        "torch": torch.__version__,
+        "threads": torch.get_num_threads(),
+    }))

@@ -6,6 +6,10 @@
 //! `W3D_BENCH_MV_STEP=1` (`W3D_BENCH_MV_STEP=1 cargo bench -p w3d-diffusion --bench diffusion --
 //! mv_step`): one iteration takes minutes on 2 cores and the models need ~8 GiB. The xtask then times diffusers on torch CPU with the same config and
 //! input as the single-view forward (xtask/python/bench_diffusion_torch.py).
+//!
+//! `attention_*`: `nn::multi_head_attention` at the five shapes of the multi-view step's
+//! attention (multi-view attention over 6 views at 32², 16² and 8², cross-domain attention at
+//! 32² and 16²), against torch's `scaled_dot_product_attention` in the same xtask run.
 #![allow(missing_docs)] // criterion_group! generates an undocumented function
 
 use std::path::PathBuf;
@@ -13,7 +17,7 @@ use std::time::Duration;
 
 use burn::module::Param;
 use criterion::{BenchmarkId, Criterion, criterion_group, criterion_main};
-use w3d_diffusion::nn::{Conv2d, ConvAlgorithm};
+use w3d_diffusion::nn::{Conv2d, ConvAlgorithm, multi_head_attention};
 use w3d_diffusion::{
     ClipVision, ClipVisionConfig, Conditioning, Device, MultiViewPipeline, SampleOptions, SchedulerConfig, UNet,
     UNetConfig, Vae, VaeConfig, gaussian_noise,
@@ -97,6 +101,37 @@ fn conv_layers(c: &mut Criterion) {
     group.finish();
 }
 
+/// The attention shapes of one guided step of the real-size multi-view UNet (both guidance
+/// branches of 12 images, 6 views × 2 domains): name, sequences, tokens per sequence (queries =
+/// keys), channels (8 heads). `mv`: multi-view attention, one sequence per branch and domain
+/// over its 6 views' tokens; `cd`: cross-domain attention, one sequence per branch and view
+/// over its normal and colour tokens. Each runs in 5 transformer blocks per level; the 8²
+/// level's cross-domain attention (128 tokens) is left out as negligible.
+const ATTENTION_SHAPES: &[(&str, usize, usize, usize)] = &[
+    ("mv32", 4, 6144, 320),
+    ("mv16", 4, 3072, 640),
+    ("mv8", 4, 1536, 1280),
+    ("cd32", 12, 2048, 320),
+    ("cd16", 12, 512, 640),
+];
+
+fn attention_shapes(c: &mut Criterion) {
+    for &(name, batch, tokens, channels) in ATTENTION_SHAPES {
+        let mut group = c.benchmark_group(format!("attention_{name}"));
+        group.sample_size(10).measurement_time(Duration::from_secs(10)).warm_up_time(Duration::from_millis(500));
+        for (backend, device) in devices() {
+            let [q, k, v] = [1, 2, 3].map(|seed| gaussian_noise([batch, tokens, channels], seed, &device));
+            group.bench_function(backend, |b| {
+                b.iter(|| {
+                    let out = multi_head_attention(q.clone(), k.clone(), v.clone(), 8);
+                    out.into_data().try_to_vec::<f32>().expect("values")
+                })
+            });
+        }
+        group.finish();
+    }
+}
+
 /// One guided DDIM step of the real-size multi-view pipeline (random weights) per backend.
 fn multiview_step(c: &mut Criterion) {
     if std::env::var_os("W3D_BENCH_MV_STEP").is_none() {
@@ -129,5 +164,5 @@ fn multiview_step(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, conv_layers, unet_forward, multiview_step);
+criterion_group!(benches, attention_shapes, conv_layers, unet_forward, multiview_step);
 criterion_main!(benches);

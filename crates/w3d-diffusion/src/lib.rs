@@ -38,6 +38,7 @@
 pub mod blocks;
 pub mod clip;
 pub mod config;
+mod cpu_attention;
 pub mod device;
 pub mod multiview;
 pub mod nn;

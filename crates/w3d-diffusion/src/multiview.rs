@@ -555,6 +555,14 @@ impl MultiViewPipeline {
 
     /// The guided noise prediction for latents `[12, c, h, w]` (`[normal × 6, colour × 6]`)
     /// at timestep `t`.
+    ///
+    /// The unconditional branch (zero image embedding, zero condition latent) and the
+    /// conditional one are two UNet evaluations of 12 images each, one after the other. The
+    /// reference batches them as 24 images `[normal uncond, normal cond, colour uncond, colour
+    /// cond]`; every attention of the UNet stays inside one branch (multi-view attention
+    /// within a domain's 6 views, cross-domain attention between view `i` of the normal and
+    /// the colour half), so the numbers are the same, and the activations of one branch at a
+    /// time need half the memory.
     fn predict(
         &self,
         x: Tensor<4>,
@@ -563,42 +571,29 @@ impl MultiViewPipeline {
         labels: &Tensor<2>,
         guidance: f64,
     ) -> Result<Tensor<4>, Error> {
-        let [n, c, h, w] = x.dims();
+        let n = x.dims()[0];
         let v = n / 2;
-        let cond_latent = cond.latent.clone().repeat_dim(0, v);
+        let cond_latent = cond.latent.clone().repeat_dim(0, n);
         let [_, d] = cond.embeds.dims();
-        let context: Tensor<3> = cond.embeds.clone().reshape([1, 1, d]).repeat_dim(0, v);
-        let normal = x.clone().slice([0..v, 0..c, 0..h, 0..w]);
-        let colour = x.slice([v..n, 0..c, 0..h, 0..w]);
+        let context: Tensor<3> = cond.embeds.clone().reshape([1, 1, d]).repeat_dim(0, n);
         let timestep = [t as f32];
+        debug_assert_eq!(labels.dims()[0], 2 * v, "labels of the [normal, colour] batch");
+        let conditional = self.unet.forward(
+            Tensor::cat(vec![x.clone(), cond_latent.clone()], 1),
+            &timestep,
+            context.clone(),
+            Some(labels.clone()),
+        )?;
         if guidance == 1.0 {
-            let input = Tensor::cat(
-                vec![Tensor::cat(vec![normal, cond_latent.clone()], 1), Tensor::cat(vec![colour, cond_latent], 1)],
-                0,
-            );
-            return self.unet.forward(input, &timestep, context.repeat_dim(0, 2), Some(labels.clone()));
+            return Ok(conditional);
         }
-        let zero_latent = cond_latent.zeros_like();
-        let zero_context = context.zeros_like();
-        let input = Tensor::cat(
-            vec![
-                Tensor::cat(vec![normal.clone(), zero_latent.clone()], 1),
-                Tensor::cat(vec![normal, cond_latent.clone()], 1),
-                Tensor::cat(vec![colour.clone(), zero_latent], 1),
-                Tensor::cat(vec![colour, cond_latent], 1),
-            ],
-            0,
-        );
-        let context = Tensor::cat(vec![zero_context.clone(), context.clone(), zero_context, context], 0);
-        let dim = labels.dims()[1];
-        let normal_labels = labels.clone().slice([0..v, 0..dim]);
-        let colour_labels = labels.clone().slice([v..n, 0..dim]);
-        let labels = Tensor::cat(vec![normal_labels.clone(), normal_labels, colour_labels.clone(), colour_labels], 0);
-        let out = self.unet.forward(input, &timestep, context, Some(labels))?;
-        let quarter = |i: usize| out.clone().slice([i * v..(i + 1) * v, 0..c, 0..h, 0..w]);
-        let normal = classifier_free_guidance(quarter(0), quarter(1), guidance);
-        let colour = classifier_free_guidance(quarter(2), quarter(3), guidance);
-        Ok(Tensor::cat(vec![normal, colour], 0))
+        let unconditional = self.unet.forward(
+            Tensor::cat(vec![x, cond_latent.zeros_like()], 1),
+            &timestep,
+            context.zeros_like(),
+            Some(labels.clone()),
+        )?;
+        Ok(classifier_free_guidance(unconditional, conditional, guidance))
     }
 
     fn check_conditioning(&self, cond: &Conditioning) -> Result<(), Error> {

@@ -8,7 +8,7 @@ use burn::module::{Module, Param};
 use burn::tensor::activation::silu;
 use burn::tensor::module::{attention, conv2d, layer_norm};
 use burn::tensor::ops::{AttentionModuleOptions, ConvOptions, PadMode};
-use burn::tensor::{DType, FloatDType, Tensor, s};
+use burn::tensor::{DType, FloatDType, Tensor, TensorData, s};
 
 use crate::weights::{Init, ParamSource};
 
@@ -59,7 +59,43 @@ impl Linear {
 /// `t` in f32: weights held in half precision ([`crate::WeightStorage::F16`]) are widened
 /// where they are used, one layer at a time, so the arithmetic is f32 whatever the storage.
 fn as_f32<const D: usize>(t: Tensor<D>) -> Tensor<D> {
-    if t.dtype() == DType::F32 { t } else { t.cast(FloatDType::F32) }
+    if t.dtype() == DType::F32 {
+        return t;
+    }
+    widen_f16_on_cpu(&t).unwrap_or_else(|| t.cast(FloatDType::F32))
+}
+
+/// Values converted per parallel task by [`widen_f16_on_cpu`].
+const WIDEN_CHUNK: usize = 1 << 16;
+
+/// An f16 tensor on a CPU backend widened to f32 with the `half` crate's vectorised slice
+/// conversion (F16C where the CPU has it), on all cores; `None` for other dtypes, devices or an
+/// autodiff graph. Burn's `cast` on flex converts one element at a time on one core, which
+/// cost several seconds of every real-size guided step with f16 weights (`docs/benchmarks.md`).
+fn widen_f16_on_cpu<const D: usize>(t: &Tensor<D>) -> Option<Tensor<D>> {
+    use half::slice::HalfFloatSliceExt;
+    use rayon::prelude::*;
+    if t.dtype() != DType::F16 || t.is_autodiff() || !on_cpu_backend(&t.device()) {
+        return None;
+    }
+    let data = t.clone().into_data();
+    let narrow = data.as_slice::<half::f16>().ok()?;
+    let mut wide = vec![0.0f32; narrow.len()];
+    wide.par_chunks_mut(WIDEN_CHUNK)
+        .zip(narrow.par_chunks(WIDEN_CHUNK))
+        .for_each(|(wide, narrow)| narrow.convert_to_f32_slice(wide));
+    Some(Tensor::from_data(TensorData::new(wide, t.shape()), &t.device()))
+}
+
+/// Whether `device` belongs to one of Burn's CPU backends (flex; ndarray with the feature),
+/// where the crate's own CPU kernels may run on the tensors' memory.
+fn on_cpu_backend(device: &burn::tensor::Device) -> bool {
+    match device.clone().inner().as_dispatch() {
+        DispatchDevice::Flex(_) => true,
+        #[cfg(feature = "ndarray")]
+        DispatchDevice::NdArray(_) => true,
+        _ => false,
+    }
 }
 
 /// How a 2-D convolution is computed.
@@ -272,9 +308,19 @@ pub fn in_groups(x: Tensor<3>, group: usize, f: impl Fn(Tensor<3>) -> Tensor<3>)
 }
 
 /// Scaled dot-product attention over token sequences: `q [b, tq, h·d]`, `k`/`v [b, tk, h·d]`
-/// split into `heads` heads, softmax scale `1/√d`; returns `[b, tq, h·d]`. Queries are
-/// processed in chunks so that at most [`ATTENTION_MAX_SCORES`] scores exist at a time.
+/// split into `heads` heads, softmax scale `1/√d`; returns `[b, tq, h·d]`.
+///
+/// On Burn's CPU backends without a gradient to track (inference) this runs the crate's own
+/// kernel: each block of 128 queries streams over blocks of 512 keys with an online softmax
+/// (the flash-attention recurrence), both products are `gemm` calls on cache-sized blocks and
+/// the exponentials are vectorised; at the multi-view UNet's shapes it is 2–3× faster than the
+/// backends' attention and on par with torch's (`docs/benchmarks.md`, "Attention"). Elsewhere
+/// (GPU backends, training) it is Burn's `attention`, with queries processed in chunks so that
+/// at most [`ATTENTION_MAX_SCORES`] scores exist at a time.
 pub fn multi_head_attention(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usize) -> Tensor<3> {
+    if let Some(out) = cpu_kernel_attention(&q, &k, &v, heads) {
+        return out;
+    }
     let [b, tq, width] = q.dims();
     let tk = k.dims()[1];
     let d = width / heads;
@@ -295,4 +341,21 @@ pub fn multi_head_attention(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usi
         Tensor::cat(parts, 2)
     };
     o.swap_dims(1, 2).reshape([b, tq, width])
+}
+
+/// The attention through [`crate::cpu_attention`] when the tensors live on a CPU backend, hold
+/// f32 and carry no autodiff graph; `None` otherwise (the caller falls back to Burn's op).
+fn cpu_kernel_attention(q: &Tensor<3>, k: &Tensor<3>, v: &Tensor<3>, heads: usize) -> Option<Tensor<3>> {
+    let device = q.device();
+    let f32s = [q, k, v].iter().all(|t| t.dtype() == DType::F32);
+    if !on_cpu_backend(&device) || q.is_autodiff() || !f32s {
+        return None;
+    }
+    let [batch, queries, width] = q.dims();
+    let keys = k.dims()[1];
+    let shape = crate::cpu_attention::AttentionShape { batch, queries, keys, heads, head_dim: width / heads };
+    let (q, k, v) = (q.clone().into_data(), k.clone().into_data(), v.clone().into_data());
+    let (q, k, v) = (q.as_slice::<f32>().ok()?, k.as_slice::<f32>().ok()?, v.as_slice::<f32>().ok()?);
+    let out = crate::cpu_attention::attention(q, k, v, shape);
+    Some(Tensor::from_data(TensorData::new(out, [batch, queries, width]), &device))
 }

@@ -2,6 +2,8 @@
 //! `cargo xtask fixtures diffusion`): UNet, VAE encode/decode, CLIP image embeddings and
 //! preprocessing, each within 1e-4 max-abs on both CPU backends.
 
+#[path = "parity_cases/attention.rs"]
+mod attention;
 mod common;
 // The conv tests share this test binary (one link instead of two).
 #[path = "parity_cases/conv.rs"]

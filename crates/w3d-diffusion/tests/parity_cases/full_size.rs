@@ -1,8 +1,9 @@
 //! The real-size Wonder3D base configs parse; the real-size models instantiate and run one
 //! forward within 8 GiB peak memory, and one guided denoising step of the real-size
 //! multi-view UNet (12 images at 32×32 latents, 24 UNet images with guidance) is timed with its
-//! peak memory on each test backend, with f32 and with f16 weight storage (ignored by default: slow; run with
-//! `cargo test --release -p w3d-diffusion --test parity full_size:: -- --ignored --nocapture --test-threads 1`).
+//! peak memory on each test backend, with f32 and with f16 weight storage (`W3D_STEP_WEIGHTS=f32` or
+//! `f16` for one of them; ignored by default: slow; run with
+//! `cargo test --release --workspace --test parity full_size:: -- --ignored --nocapture --test-threads 1`).
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -94,8 +95,15 @@ fn reset_peak_rss() {
 fn real_size_multiview_guided_step() {
     let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
     // f16 first: memory freed by a run stays with the allocator and would count in the next.
-    let storages = [WeightStorage::F16, WeightStorage::F32];
-    for ((name, device), storage) in test_devices().into_iter().flat_map(|d| storages.map(|s| (d.clone(), s))) {
+    // `W3D_STEP_WEIGHTS=f16` or `f32` times one storage only.
+    let storages: Vec<WeightStorage> = match std::env::var("W3D_STEP_WEIGHTS").as_deref() {
+        Ok("f16") => vec![WeightStorage::F16],
+        Ok("f32") => vec![WeightStorage::F32],
+        _ => vec![WeightStorage::F16, WeightStorage::F32],
+    };
+    for ((name, device), storage) in
+        test_devices().into_iter().flat_map(|d| storages.iter().map(move |&s| (d.clone(), s)))
+    {
         let name = format!("{name}, {storage:?} weights");
         let t = Instant::now();
         let unet_config = UNetConfig::from_file(config("unet_mv/config.json")).unwrap();
