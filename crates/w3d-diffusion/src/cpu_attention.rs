@@ -4,11 +4,11 @@
 //! Why a kernel of our own: the multi-view attention of a guided step (four groups × 8 heads ×
 //! 6144 queries × 6144 keys at the 32×32 level) is where a CPU spends most of that step. The
 //! backends' attention evaluates the softmax one scalar `expf` at a time between two GEMMs;
-//! measured at the real-size shapes it ran at 27–69 GFLOP/s, against a GEMM peak near
-//! 190 GFLOP/s on the same cores (`docs/benchmarks.md`, "Attention"). Here each block of
-//! queries streams over blocks of keys with an online softmax (the flash-attention
-//! recurrence), both products are `gemm` calls on cache-sized blocks, and the exponentials are
-//! a polynomial the compiler vectorises.
+//! measured at the real-size shapes it ran at 27–69 GFLOP/s, against a GEMM peak of about
+//! 185 GFLOP/s on the same cores (`docs/benchmarks.md`, "The attention kernel"). Here each
+//! block of queries streams over blocks of keys with an online softmax (the flash-attention
+//! recurrence), both products are `gemm` calls on cache-sized blocks, and the exponentials
+//! are a polynomial the compiler vectorises.
 //!
 //! The arithmetic is the textbook one, `softmax(q·kᵀ/√d)·v`, evaluated in f32 with the running
 //! maximum subtracted before every exponential, so the result matches an implementation that
