@@ -314,7 +314,7 @@ pub fn in_groups(x: Tensor<3>, group: usize, f: impl Fn(Tensor<3>) -> Tensor<3>)
 /// kernel: each block of 128 queries streams over blocks of 512 keys with an online softmax
 /// (the flash-attention recurrence), both products are `gemm` calls on cache-sized blocks and
 /// the exponentials are vectorised; at the multi-view UNet's shapes it is 1.7–3.5× faster
-/// than the backends' attention and on par with torch's (`docs/benchmarks.md`, "The attention
+/// than the backends' attention and on par with torch 2.4.1's (`docs/benchmarks.md`, "The attention
 /// kernel"). Elsewhere (GPU backends, training) it is Burn's `attention`, with queries
 /// processed in chunks so that at most [`ATTENTION_MAX_SCORES`] scores exist at a time.
 pub fn multi_head_attention(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usize) -> Tensor<3> {
