@@ -572,12 +572,11 @@ impl MultiViewPipeline {
         guidance: f64,
     ) -> Result<Tensor<4>, Error> {
         let n = x.dims()[0];
-        let v = n / 2;
         let cond_latent = cond.latent.clone().repeat_dim(0, n);
         let [_, d] = cond.embeds.dims();
         let context: Tensor<3> = cond.embeds.clone().reshape([1, 1, d]).repeat_dim(0, n);
         let timestep = [t as f32];
-        debug_assert_eq!(labels.dims()[0], 2 * v, "labels of the [normal, colour] batch");
+        debug_assert_eq!(labels.dims()[0], n, "labels of the [normal, colour] batch");
         let conditional = self.unet.forward(
             Tensor::cat(vec![x.clone(), cond_latent.clone()], 1),
             &timestep,

@@ -318,8 +318,8 @@ pub fn in_groups(x: Tensor<3>, group: usize, f: impl Fn(Tensor<3>) -> Tensor<3>)
 /// kernel"). Elsewhere (GPU backends, training) it is Burn's `attention`, with queries
 /// processed in chunks so that at most [`ATTENTION_MAX_SCORES`] scores exist at a time.
 pub fn multi_head_attention(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usize) -> Tensor<3> {
-    if let Some(out) = cpu_kernel_attention(&q, &k, &v, heads) {
-        return out;
+    if cpu_kernel_applies(&q, &k, &v) {
+        return cpu_kernel_attention(q, k, v, heads);
     }
     let [b, tq, width] = q.dims();
     let tk = k.dims()[1];
@@ -343,19 +343,22 @@ pub fn multi_head_attention(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usi
     o.swap_dims(1, 2).reshape([b, tq, width])
 }
 
-/// The attention through [`crate::cpu_attention`] when the tensors live on a CPU backend, hold
-/// f32 and carry no autodiff graph; `None` otherwise (the caller falls back to Burn's op).
-fn cpu_kernel_attention(q: &Tensor<3>, k: &Tensor<3>, v: &Tensor<3>, heads: usize) -> Option<Tensor<3>> {
+/// Whether [`cpu_kernel_attention`] takes the call: the tensors live on a CPU backend, hold
+/// f32 and carry no autodiff graph (otherwise Burn's op runs).
+fn cpu_kernel_applies(q: &Tensor<3>, k: &Tensor<3>, v: &Tensor<3>) -> bool {
+    [q, k, v].iter().all(|t| t.dtype() == DType::F32) && !q.is_autodiff() && on_cpu_backend(&q.device())
+}
+
+/// The attention through [`crate::cpu_attention`]. The tensors are taken by value: the
+/// projections that produce them hold no other reference, so on flex their values move out
+/// without a copy.
+fn cpu_kernel_attention(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usize) -> Tensor<3> {
     let device = q.device();
-    let f32s = [q, k, v].iter().all(|t| t.dtype() == DType::F32);
-    if !on_cpu_backend(&device) || q.is_autodiff() || !f32s {
-        return None;
-    }
     let [batch, queries, width] = q.dims();
     let keys = k.dims()[1];
     let shape = crate::cpu_attention::AttentionShape { batch, queries, keys, heads, head_dim: width / heads };
-    let (q, k, v) = (q.clone().into_data(), k.clone().into_data(), v.clone().into_data());
-    let (q, k, v) = (q.as_slice::<f32>().ok()?, k.as_slice::<f32>().ok()?, v.as_slice::<f32>().ok()?);
-    let out = crate::cpu_attention::attention(q, k, v, shape);
-    Some(Tensor::from_data(TensorData::new(out, [batch, queries, width]), &device))
+    let values =
+        |t: Tensor<3>| t.into_data().try_into_vec::<f32>().expect("f32 values (checked by cpu_kernel_applies)");
+    let out = crate::cpu_attention::attention(&values(q), &values(k), &values(v), shape);
+    Tensor::from_data(TensorData::new(out, [batch, queries, width]), &device)
 }
