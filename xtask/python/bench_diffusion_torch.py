@@ -12,12 +12,13 @@ tensors, one JSON object per shape.
 
 import json
 import os
-import statistics
 import sys
-import time
 
 import torch
 from diffusers import UNet2DConditionModel
+
+sys.path.insert(0, os.path.dirname(__file__))
+from peer_timing import report  # noqa: E402
 
 root = sys.argv[1]
 runs = int(sys.argv[2]) if len(sys.argv) > 2 else 5
@@ -29,19 +30,8 @@ unet = UNet2DConditionModel(**config).eval()
 sample = torch.randn(2, 8, 32, 32)
 context = torch.randn(2, 1, 768)
 labels = torch.randn(2, 14)
-unet(sample, 500, encoder_hidden_states=context, class_labels=labels)
-times = []
-for _ in range(runs):
-    t = time.perf_counter()
-    unet(sample, 500, encoder_hidden_states=context, class_labels=labels)
-    times.append((time.perf_counter() - t) * 1e3)
-print(json.dumps({
-    "id": "unet_forward_b2_32x32/torch",
-    "median_ms": statistics.median(times),
-    "times_ms": times,
-    "torch": torch.__version__,
-    "threads": torch.get_num_threads(),
-}))
+report("unet_forward_b2_32x32/torch", lambda: unet(sample, 500, encoder_hidden_states=context, class_labels=labels),
+       runs)
 
 # name, batch, tokens (queries = keys), channels; 8 heads everywhere.
 ATTENTION_SHAPES = [
@@ -59,17 +49,4 @@ for name, batch, tokens, channels in ATTENTION_SHAPES:
     def attention():
         o = torch.nn.functional.scaled_dot_product_attention(split(q), split(k), split(v))
         return o.transpose(1, 2).reshape(batch, tokens, channels)
-    attention()
-    times = []
-    for _ in range(runs):
-        t = time.perf_counter()
-        attention()
-        times.append((time.perf_counter() - t) * 1e3)
-    print(json.dumps({
-        "id": f"attention_{name}/torch",
-        "median_ms": statistics.median(times),
-        "times_ms": times,
-        "gflop": 4 * batch * tokens * tokens * channels / 1e9,
-        "torch": torch.__version__,
-        "threads": torch.get_num_threads(),
-    }))
+    report(f"attention_{name}/torch", attention, runs, gflop=4 * batch * tokens * tokens * channels / 1e9)

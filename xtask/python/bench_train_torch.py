@@ -12,9 +12,7 @@ object per configuration: median and all times in ms.
 import inspect
 import json
 import os
-import statistics
 import sys
-import time
 
 import torch
 import torch.nn.functional as F
@@ -22,6 +20,7 @@ from diffusers import DDPMScheduler, UNet2DConditionModel
 
 sys.path.insert(0, os.path.dirname(__file__))
 from fixtures_diffusion import MV_UNET, NUM_VIEWS, make_multiview  # noqa: E402
+from peer_timing import report  # noqa: E402
 
 root = sys.argv[1]
 runs = int(sys.argv[2]) if len(sys.argv) > 2 else 10
@@ -91,21 +90,8 @@ def bench(name, config, side, scheduler_path):
         optimizer.step()
         return loss.item()
 
-    step()
-    step()
-    times = []
-    for _ in range(runs):
-        t = time.perf_counter()
-        step()
-        times.append((time.perf_counter() - t) * 1e3)
-    print(json.dumps({
-        "id": f"train_step/{name}/torch",
-        "median_ms": statistics.median(times),
-        "times_ms": times,
-        "parameters": sum(p.numel() for p in unet.parameters()),
-        "torch": torch.__version__,
-        "threads": torch.get_num_threads(),
-    }), flush=True)
+    report(f"train_step/{name}/torch", step, runs, warmup=2,
+           parameters=sum(p.numel() for p in unet.parameters()))
 
 
 tiny = os.path.join(root, "crates/w3d-diffusion/tests/fixtures/wonder3d_tiny")
