@@ -13,7 +13,7 @@ use burn::tensor::{Device, Tensor};
 use w3d_core::Error;
 
 use crate::config::ClipVisionConfig;
-use crate::nn::{LayerNorm, Linear, multi_head_attention};
+use crate::nn::{LayerNorm, Linear, causal_multi_head_attention, multi_head_attention};
 use crate::weights::{Init, NamedParam, ParamSource, Precision, SafetensorsFile, WeightStorage};
 
 /// Per-channel RGB mean of CLIP's normalisation (pixels in `[0, 1]`).
@@ -23,8 +23,12 @@ pub const CLIP_MEAN: [f32; 3] = [0.481_454_66, 0.457_827_5, 0.408_210_73];
 #[allow(clippy::excessive_precision)] // the published constants, digit for digit
 pub const CLIP_STD: [f32; 3] = [0.268_629_54, 0.261_302_58, 0.275_777_11];
 
+/// One pre-LayerNorm transformer layer of a CLIP tower (transformers `CLIPEncoderLayer`):
+/// `x + out_proj(attention(layer_norm1(x)))`, then `x + fc2(act(fc1(layer_norm2(x))))`. The
+/// vision tower ([`ClipVision`]) and the text tower ([`crate::ClipText`]) share it; only the
+/// text tower masks its attention causally.
 #[derive(Module, Debug)]
-struct EncoderLayer {
+pub(crate) struct EncoderLayer {
     layer_norm1: LayerNorm,
     q_proj: Linear,
     k_proj: Linear,
@@ -33,6 +37,37 @@ struct EncoderLayer {
     layer_norm2: LayerNorm,
     fc1: Linear,
     fc2: Linear,
+}
+
+impl EncoderLayer {
+    /// The layer under `prefix` (e.g. `text_model.encoder.layers.3`): width `d`, MLP width
+    /// `inter`, LayerNorm epsilon `eps`.
+    pub(crate) fn load(p: &mut ParamSource, prefix: &str, d: usize, inter: usize, eps: f64) -> Self {
+        Self {
+            layer_norm1: LayerNorm::load(p, &format!("{prefix}.layer_norm1"), d, eps),
+            q_proj: Linear::load(p, &format!("{prefix}.self_attn.q_proj"), d, d, true),
+            k_proj: Linear::load(p, &format!("{prefix}.self_attn.k_proj"), d, d, true),
+            v_proj: Linear::load(p, &format!("{prefix}.self_attn.v_proj"), d, d, true),
+            out_proj: Linear::load(p, &format!("{prefix}.self_attn.out_proj"), d, d, true),
+            layer_norm2: LayerNorm::load(p, &format!("{prefix}.layer_norm2"), d, eps),
+            fc1: Linear::load(p, &format!("{prefix}.mlp.fc1"), d, inter, true),
+            fc2: Linear::load(p, &format!("{prefix}.mlp.fc2"), inter, d, true),
+        }
+    }
+
+    /// The layer applied to tokens `x [n, t, d]` with `heads` attention heads and the MLP
+    /// activation `hidden_act` (`quick_gelu`, else exact `gelu`; configs validate it); with
+    /// `causal`, token `i` attends to tokens `0..=i` only.
+    pub(crate) fn forward(&self, x: Tensor<3>, heads: usize, hidden_act: &str, causal: bool) -> Tensor<3> {
+        let h = self.layer_norm1.forward(x.clone());
+        let (q, k, v) = (self.q_proj.forward(h.clone()), self.k_proj.forward(h.clone()), self.v_proj.forward(h));
+        let attn =
+            if causal { causal_multi_head_attention(q, k, v, heads) } else { multi_head_attention(q, k, v, heads) };
+        let x = x + self.out_proj.forward(attn);
+        let h = self.fc1.forward(self.layer_norm2.forward(x.clone()));
+        let h = if hidden_act == "quick_gelu" { h.clone() * sigmoid(h * 1.702) } else { gelu(h) };
+        x + self.fc2.forward(h)
+    }
 }
 
 /// The CLIP image encoder (see the module docs).
@@ -148,19 +183,7 @@ impl ClipVision {
         let eps = c.layer_norm_eps;
         let pre_layrnorm = LayerNorm::load(p, "vision_model.pre_layrnorm", d, eps);
         let layers = (0..c.num_hidden_layers)
-            .map(|l| {
-                let k = format!("vision_model.encoder.layers.{l}");
-                EncoderLayer {
-                    layer_norm1: LayerNorm::load(p, &format!("{k}.layer_norm1"), d, eps),
-                    q_proj: Linear::load(p, &format!("{k}.self_attn.q_proj"), d, d, true),
-                    k_proj: Linear::load(p, &format!("{k}.self_attn.k_proj"), d, d, true),
-                    v_proj: Linear::load(p, &format!("{k}.self_attn.v_proj"), d, d, true),
-                    out_proj: Linear::load(p, &format!("{k}.self_attn.out_proj"), d, d, true),
-                    layer_norm2: LayerNorm::load(p, &format!("{k}.layer_norm2"), d, eps),
-                    fc1: Linear::load(p, &format!("{k}.mlp.fc1"), d, c.intermediate_size, true),
-                    fc2: Linear::load(p, &format!("{k}.mlp.fc2"), c.intermediate_size, d, true),
-                }
-            })
+            .map(|l| EncoderLayer::load(p, &format!("vision_model.encoder.layers.{l}"), d, c.intermediate_size, eps))
             .collect();
         let post_layernorm = LayerNorm::load(p, "vision_model.post_layernorm", d, eps);
         let visual_projection = Linear::load(p, "visual_projection", d, c.projection_dim, false);
@@ -197,17 +220,7 @@ impl ClipVision {
         let x = Tensor::cat(vec![class, tokens], 1) + self.position_embedding.val().unsqueeze::<3>();
         let mut x = self.pre_layrnorm.forward(x);
         for layer in &self.layers {
-            let h = layer.layer_norm1.forward(x.clone());
-            let attn = multi_head_attention(
-                layer.q_proj.forward(h.clone()),
-                layer.k_proj.forward(h.clone()),
-                layer.v_proj.forward(h),
-                c.num_attention_heads,
-            );
-            x = x + layer.out_proj.forward(attn);
-            let h = layer.fc1.forward(layer.layer_norm2.forward(x.clone()));
-            let h = if c.hidden_act == "quick_gelu" { h.clone() * sigmoid(h * 1.702) } else { gelu(h) };
-            x = x + layer.fc2.forward(h);
+            x = layer.forward(x, c.num_attention_heads, &c.hidden_act, false);
         }
         let pooled = x.slice([0..n, 0..1, 0..d]).reshape([n, d]);
         Ok(self.visual_projection.forward(self.post_layernorm.forward(pooled)))

@@ -824,6 +824,122 @@ impl ClipVisionConfig {
     }
 }
 
+/// The largest vocabulary a CLIP text config may declare (SD1.5's has 49 408 tokens): a bound
+/// like [`MAX_WIDTH`], so a damaged `config.json` cannot ask for an enormous embedding table.
+pub const MAX_VOCAB: usize = 1 << 18;
+/// The most token positions a CLIP text config may declare (SD1.5's has 77).
+pub const MAX_POSITIONS: usize = 4096;
+
+fn default_text_vocab() -> usize {
+    49408
+}
+fn default_text_hidden() -> usize {
+    512
+}
+fn default_text_inter() -> usize {
+    2048
+}
+fn default_text_heads() -> usize {
+    8
+}
+fn default_text_positions() -> usize {
+    77
+}
+fn default_bos() -> Option<u32> {
+    Some(49406)
+}
+fn default_eos() -> Option<u32> {
+    Some(49407)
+}
+fn default_pad() -> Option<u32> {
+    Some(1)
+}
+
+/// `CLIPTextConfig` (transformers `text_encoder/config.json` of a `CLIPTextModel`, SD1.5's
+/// text tower). Fields a file omits take transformers' defaults (the 512-wide CLIP-B text
+/// tower); SD1.5's file states the ViT-L/14 text tower: vocabulary 49 408, 77 positions,
+/// width 768, 12 layers, 12 heads, MLP 3072, `quick_gelu`.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+pub struct ClipTextConfig {
+    /// Token ids are `0..vocab_size` (rows of the token embedding).
+    #[serde(default = "default_text_vocab")]
+    pub vocab_size: usize,
+    /// Token width.
+    #[serde(default = "default_text_hidden")]
+    pub hidden_size: usize,
+    /// MLP hidden width.
+    #[serde(default = "default_text_inter")]
+    pub intermediate_size: usize,
+    /// Encoder layers.
+    #[serde(default = "default_clip_layers")]
+    pub num_hidden_layers: usize,
+    /// Attention heads (a divisor of `hidden_size`).
+    #[serde(default = "default_text_heads")]
+    pub num_attention_heads: usize,
+    /// Longest token sequence (rows of the position embedding).
+    #[serde(default = "default_text_positions")]
+    pub max_position_embeddings: usize,
+    /// `quick_gelu` or `gelu`.
+    #[serde(default = "default_quick_gelu")]
+    pub hidden_act: String,
+    /// LayerNorm epsilon.
+    #[serde(default = "default_eps5")]
+    pub layer_norm_eps: f64,
+    /// Begin-of-text id as the file states it. Informational: the encoder reads no special id,
+    /// and the tokenizer's own ids are authoritative (SD1.5's file says 0, a legacy value; its
+    /// tokenizer's `<|startoftext|>` is 49406).
+    #[serde(default = "default_bos")]
+    pub bos_token_id: Option<u32>,
+    /// End-of-text id as the file states it (informational, see `bos_token_id`; SD1.5's file
+    /// says 2, its tokenizer's `<|endoftext|>` is 49407).
+    #[serde(default = "default_eos")]
+    pub eos_token_id: Option<u32>,
+    /// Padding id as the file states it (informational, see `bos_token_id`).
+    #[serde(default = "default_pad")]
+    pub pad_token_id: Option<u32>,
+}
+
+impl ClipTextConfig {
+    /// Parses `text_encoder/config.json`: either a text config or a full `CLIPConfig` whose
+    /// `text_config` is used.
+    pub fn from_file(path: impl AsRef<Path>) -> Result<Self, Error> {
+        let path = path.as_ref();
+        let value: serde_json::Value = read_json(path)?;
+        Self::from_value(value).map_err(|e| e.in_file(path))
+    }
+
+    /// Parses a JSON value (see [`ClipTextConfig::from_file`]).
+    pub fn from_value(value: serde_json::Value) -> Result<Self, Error> {
+        let value = match value.get("text_config") {
+            Some(text) => text.clone(),
+            None => value,
+        };
+        let config = serde_json::from_value::<Self>(value)
+            .map_err(|e| Error::invalid("config", format!("a CLIP text config ({e})")))?;
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// Checks that every field holds a supported value.
+    pub fn validate(&self) -> Result<(), Error> {
+        in_range("vocab_size", self.vocab_size, MAX_VOCAB)?;
+        in_range("hidden_size", self.hidden_size, MAX_WIDTH)?;
+        in_range("intermediate_size", self.intermediate_size, 4 * MAX_WIDTH)?;
+        in_range("num_hidden_layers", self.num_hidden_layers, MAX_LAYERS)?;
+        in_range("max_position_embeddings", self.max_position_embeddings, MAX_POSITIONS)?;
+        if self.hidden_act != "quick_gelu" && self.hidden_act != "gelu" {
+            return Err(unsupported("hidden_act", &self.hidden_act, "quick_gelu or gelu"));
+        }
+        if self.num_attention_heads == 0 || !self.hidden_size.is_multiple_of(self.num_attention_heads) {
+            return Err(Error::invalid("num_attention_heads", "a divisor of hidden_size"));
+        }
+        if !(self.layer_norm_eps.is_finite() && self.layer_norm_eps > 0.0) {
+            return Err(Error::invalid("layer_norm_eps", format!("a positive number, found {}", self.layer_norm_eps)));
+        }
+        Ok(())
+    }
+}
+
 fn default_train_steps() -> usize {
     1000
 }

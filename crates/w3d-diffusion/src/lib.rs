@@ -1,6 +1,7 @@
 //! Diffusion models of wonder3d-rs on Burn 0.22: the Stable-Diffusion-image-variations UNet
 //! (`UNet2DConditionModel`, with the projection class embedding Wonder3D's switchers use), the
-//! `AutoencoderKL` VAE, the CLIP vision encoder with projection and its preprocessing, DDIM and
+//! `AutoencoderKL` VAE, the CLIP vision encoder with projection and its preprocessing, the CLIP
+//! text encoder ([`ClipText`]) and its BPE tokenizer ([`ClipTokenizer`]), DDIM and
 //! DPM-Solver++(2M) sampling with classifier-free guidance and DDIM inversion (exactly as
 //! diffusers), and
 //! streaming `.safetensors` loading with the diffusers / transformers key names. The UNet is
@@ -37,12 +38,14 @@
 
 pub mod blocks;
 pub mod clip;
+pub mod clip_text;
 pub mod config;
 mod cpu_attention;
 pub mod device;
 pub mod multiview;
 pub mod nn;
 pub mod scheduler;
+pub mod tokenizer;
 pub mod train;
 pub mod training_set;
 pub mod unet;
@@ -51,9 +54,10 @@ pub mod weights;
 
 pub use burn::tensor::{Device, Tensor, TensorData};
 pub use clip::{CLIP_MEAN, CLIP_STD, ClipVision, preprocess as clip_preprocess};
+pub use clip_text::ClipText;
 pub use config::{
-    AUTHORS_INFERENCE_UNET_KWARGS, ClipVisionConfig, ConfigDifference, InferenceOverride, PerBlock, SchedulerConfig,
-    UNetConfig, VaeConfig,
+    AUTHORS_INFERENCE_UNET_KWARGS, ClipTextConfig, ClipVisionConfig, ConfigDifference, InferenceOverride, PerBlock,
+    SchedulerConfig, UNetConfig, VaeConfig,
 };
 #[cfg(feature = "wgpu")]
 pub use device::gpu_device;
@@ -66,6 +70,7 @@ pub use scheduler::{
     DdimInverseScheduler, DdimScheduler, DpmSolverMultistepScheduler, Prediction, SamplerKind,
     classifier_free_guidance, ddim_invert, ddim_sample, gaussian_noise,
 };
+pub use tokenizer::ClipTokenizer;
 pub use unet::UNet;
 pub use vae::Vae;
 pub use weights::{NamedParam, NamedValues, Precision, SafetensorsFile, WeightStorage};

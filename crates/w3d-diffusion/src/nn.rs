@@ -321,21 +321,42 @@ pub fn multi_head_attention(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usi
     if cpu_kernel_applies(&q, &k, &v) {
         return cpu_kernel_attention(q, k, v, heads);
     }
+    burn_attention(q, k, v, heads, AttentionModuleOptions::default())
+}
+
+/// [`multi_head_attention`] of a sequence over itself with a causal mask: query `i` attends to
+/// keys `0..=i` only (a decoder-style self-attention, as CLIP's text tower uses). `q`, `k`, `v`
+/// are `[b, t, h·d]`; returns `[b, t, h·d]`. Always Burn's `attention` with `is_causal` (the
+/// crate's CPU kernel has no mask; the sequences this serves are short, e.g. 77 text tokens).
+pub fn causal_multi_head_attention(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usize) -> Tensor<3> {
+    burn_attention(q, k, v, heads, AttentionModuleOptions { is_causal: true, ..Default::default() })
+}
+
+/// Burn's `attention` on `[b, t, h·d]` sequences split into `heads` heads, with queries in
+/// chunks so that at most [`ATTENTION_MAX_SCORES`] scores exist at a time (a chunk of queries
+/// `start..end` under a causal mask would be misaligned, so causal calls run in one piece).
+fn burn_attention(
+    q: Tensor<3>,
+    k: Tensor<3>,
+    v: Tensor<3>,
+    heads: usize,
+    options: AttentionModuleOptions,
+) -> Tensor<3> {
     let [b, tq, width] = q.dims();
     let tk = k.dims()[1];
     let d = width / heads;
     let split = |t: Tensor<3>, len: usize| t.reshape([b, len, heads, d]).swap_dims(1, 2);
     let (q, k, v) = (split(q, tq), split(k, tk), split(v, tk));
     let chunk = (ATTENTION_MAX_SCORES / (b * heads * tk).max(1)).max(1);
-    let o = if chunk >= tq {
-        attention(q, k, v, None, None, AttentionModuleOptions::default())
+    let o = if chunk >= tq || options.is_causal {
+        attention(q, k, v, None, None, options)
     } else {
         let parts = (0..tq)
             .step_by(chunk)
             .map(|start| {
                 let end = (start + chunk).min(tq);
                 let q = q.clone().slice(s![.., .., start..end, ..]);
-                attention(q, k.clone(), v.clone(), None, None, AttentionModuleOptions::default())
+                attention(q, k.clone(), v.clone(), None, None, options)
             })
             .collect();
         Tensor::cat(parts, 2)

@@ -1,9 +1,12 @@
 //! Parity with diffusers / transformers on tiny random-weight models (fixtures from
 //! `cargo xtask fixtures diffusion`): UNet, VAE encode/decode, CLIP image embeddings and
-//! preprocessing, each within 1e-4 max-abs on both CPU backends.
+//! preprocessing, each within 1e-4 max-abs on both CPU backends; the CLIP text encoder and BPE
+//! tokenizer (`parity_cases/clip_text.rs`, fixtures from `xtask/python/fixtures_clip_text.py`).
 
 #[path = "parity_cases/attention.rs"]
 mod attention;
+#[path = "parity_cases/clip_text.rs"]
+mod clip_text;
 mod common;
 // The conv tests share this test binary (one link instead of two).
 #[path = "parity_cases/conv.rs"]
