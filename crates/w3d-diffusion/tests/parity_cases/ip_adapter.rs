@@ -39,7 +39,8 @@ impl Io {
     }
 
     fn run(&self, unet: &UNet, ip: Option<IpTokens>) -> Result<Tensor<4>, w3d_core::Error> {
-        let extra = UNetExtra { ip };
+        // `..Default::default()`: other fields (the ControlNet residuals) stay unset.
+        let extra = UNetExtra { ip, ..Default::default() };
         unet.forward_with(self.sample.clone(), &self.timesteps, self.context.clone(), None, &extra)
     }
 }
@@ -274,7 +275,8 @@ fn sd15_block_structure_takes_the_documented_key_numbers() {
     let sample = Tensor::<4>::zeros([2, 4, 8, 8], &device);
     let context = Tensor::<3>::zeros([2, 3, 12], &device);
     let ip = projection.guided(Tensor::<2>::ones([1, 10], &device), 1.0).unwrap();
-    let out = unet.forward_with(sample, &[10.0], context, None, &UNetExtra { ip: Some(ip) }).unwrap();
+    let out =
+        unet.forward_with(sample, &[10.0], context, None, &UNetExtra { ip: Some(ip), ..Default::default() }).unwrap();
     assert_eq!(out.dims(), [2, 4, 8, 8]);
 }
 
