@@ -6,6 +6,7 @@ use burn::module::Module;
 use burn::tensor::Tensor;
 use burn::tensor::activation::{gelu, silu};
 
+use crate::ip_adapter::IpTokens;
 use crate::nn::{Conv2d, GroupNorm, LayerNorm, Linear, multi_head_attention};
 use crate::weights::{Init, ParamSource};
 
@@ -113,7 +114,8 @@ pub fn upsample_nearest2x(x: Tensor<4>) -> Tensor<4> {
 }
 
 /// diffusers `Attention` on token sequences: q/k/v projections, multi-head SDPA, output
-/// projection (`to_out.0`).
+/// projection (`to_out.0`); as a UNet cross-attention (`attn2`) it may carry an IP-Adapter's
+/// image keys and values (see [`Attention::forward_with_ip`]).
 #[derive(Module, Debug)]
 pub struct Attention {
     to_q: Linear,
@@ -121,6 +123,16 @@ pub struct Attention {
     to_v: Linear,
     to_out: Linear,
     heads: usize,
+    /// The IP-Adapter's `to_k_ip` / `to_v_ip` (cross-attention layers with an adapter loaded).
+    ip: Option<IpKeyValue>,
+}
+
+/// An IP-Adapter's projections of the image tokens to keys and values of one cross-attention
+/// layer: `to_k_ip`, `to_v_ip`, Linear(cross_attention_dim → layer width, no bias).
+#[derive(Module, Debug)]
+pub(crate) struct IpKeyValue {
+    pub(crate) to_k_ip: Linear,
+    pub(crate) to_v_ip: Linear,
 }
 
 impl Attention {
@@ -153,7 +165,23 @@ impl Attention {
             to_v: Linear::load(p, &format!("{key}.to_v"), context_dim, dim, bias),
             to_out: Linear::load_init(p, &format!("{key}.to_out.0"), dim, dim, true, out_init),
             heads,
+            ip: None,
         }
+    }
+
+    /// The layer's width (query, output and IP key/value width).
+    pub(crate) fn width(&self) -> usize {
+        self.to_q.weight.dims()[1]
+    }
+
+    /// Whether the layer has an IP-Adapter's image keys and values.
+    pub(crate) fn has_ip(&self) -> bool {
+        self.ip.is_some()
+    }
+
+    /// Gives the layer an IP-Adapter's image key / value projections.
+    pub(crate) fn set_ip(&mut self, ip: IpKeyValue) {
+        self.ip = Some(ip);
     }
 
     /// `x [b, t, dim]` attends to `context [b, s, context_dim]` (or to itself).
@@ -163,6 +191,29 @@ impl Attention {
         let k = self.to_k.forward(context.clone());
         let v = self.to_v.forward(context);
         self.to_out.forward(multi_head_attention(q, k, v, self.heads))
+    }
+
+    /// The cross-attention of `x [b, t, dim]` to `context [b, s, context_dim]` with the
+    /// IP-Adapter's decoupled image attention (docs/weights.md, "IP-Adapter"):
+    /// `to_out(SDPA(q, K_text, V_text) + scale · SDPA(q, to_k_ip(ip), to_v_ip(ip)))`, the same
+    /// queries and heads for both, no mask; `ip.tokens` is `[b, n_ip, context_dim]`. Without
+    /// tokens, without an adapter in this layer or at scale 0 it is exactly
+    /// [`Attention::forward`] (as diffusers, which skips the image attention at scale 0).
+    pub fn forward_with_ip(&self, x: Tensor<3>, context: &Tensor<3>, ip: Option<&IpTokens>) -> Tensor<3> {
+        let (Some(ip), Some(kv)) = (ip, &self.ip) else {
+            return self.forward(x, Some(context));
+        };
+        if ip.scale == 0.0 {
+            return self.forward(x, Some(context));
+        }
+        let q = self.to_q.forward(x);
+        let k = self.to_k.forward(context.clone());
+        let v = self.to_v.forward(context.clone());
+        let text = multi_head_attention(q.clone(), k, v, self.heads);
+        let k_ip = kv.to_k_ip.forward(ip.tokens.clone());
+        let v_ip = kv.to_v_ip.forward(ip.tokens.clone());
+        let image = multi_head_attention(q, k_ip, v_ip, self.heads);
+        self.to_out.forward(text + image * ip.scale)
     }
 }
 
@@ -233,12 +284,13 @@ impl TransformerBlock {
     }
 
     /// `x [n, tokens, dim]`; with multi-view attention `n` is a multiple of the view count,
-    /// with cross-domain attention `n` is even (`[normal half, colour half]`).
-    fn forward(&self, x: Tensor<3>, context: &Tensor<3>) -> Tensor<3> {
+    /// with cross-domain attention `n` is even (`[normal half, colour half]`); `ip` the
+    /// IP-Adapter tokens of the cross-attention (`[n, n_ip, cross_dim]`), if any.
+    fn forward(&self, x: Tensor<3>, context: &Tensor<3>, ip: Option<&IpTokens>) -> Tensor<3> {
         let attn1 = &self.attn1;
         let x = within_views(self.norm1.forward(x.clone()), self.views, |t| attn1.forward(t, None)) + x;
         let x = joint_attention(x, self.norm_joint_mid.as_ref(), self.attn_joint_mid.as_ref());
-        let x = self.attn2.forward(self.norm2.forward(x.clone()), Some(context)) + x;
+        let x = self.attn2.forward_with_ip(self.norm2.forward(x.clone()), context, ip) + x;
         let x = self.feed_forward(self.norm3.forward(x.clone())) + x;
         joint_attention(x, self.norm_joint_last.as_ref(), self.attn_joint_last.as_ref())
     }
@@ -361,6 +413,12 @@ impl SpatialTransformer {
 
     /// `x [n, c, h, w]`, `context [n, s, cross_dim]`.
     pub fn forward(&self, x: Tensor<4>, context: &Tensor<3>) -> Tensor<4> {
+        self.forward_with_ip(x, context, None)
+    }
+
+    /// [`SpatialTransformer::forward`] with IP-Adapter tokens `[n, n_ip, cross_dim]` for the
+    /// cross-attentions (see [`Attention::forward_with_ip`]).
+    pub fn forward_with_ip(&self, x: Tensor<4>, context: &Tensor<3>, ip: Option<&IpTokens>) -> Tensor<4> {
         let [n, c, h, w] = x.dims();
         let residual = x.clone();
         let x = self.norm.forward(x);
@@ -370,7 +428,7 @@ impl SpatialTransformer {
             Projection::Linear(lin) => lin.forward(to_tokens(x)),
         };
         for block in &self.blocks {
-            tokens = block.forward(tokens, context);
+            tokens = block.forward(tokens, context, ip);
         }
         let to_image = |t: Tensor<3>| t.swap_dims(1, 2).reshape([n, c, h, w]);
         let out = match &self.proj_out {
@@ -378,6 +436,18 @@ impl SpatialTransformer {
             Projection::Linear(lin) => to_image(lin.forward(tokens)),
         };
         out + residual
+    }
+}
+
+impl SpatialTransformer {
+    /// The cross-attention (`attn2`) of every transformer block, in block order.
+    pub(crate) fn cross_attentions(&self) -> impl Iterator<Item = &Attention> {
+        self.blocks.iter().map(|b| &b.attn2)
+    }
+
+    /// [`SpatialTransformer::cross_attentions`], mutable (to add an IP-Adapter).
+    pub(crate) fn cross_attentions_mut(&mut self) -> impl Iterator<Item = &mut Attention> {
+        self.blocks.iter_mut().map(|b| &mut b.attn2)
     }
 }
 

@@ -233,6 +233,52 @@ impl ClipVision {
 /// `rgb` is `[height][width][3]` row-major with values in `[0, 255]` (8-bit sample values,
 /// as f32). Returns `[3, size, size]` channel-major.
 pub fn preprocess(rgb: &[f32], width: usize, height: usize, size: usize) -> Result<Vec<f32>, Error> {
+    resize_crop_normalize(rgb, width, height, size, |v| v / 255.0)
+}
+
+/// The Wonder3D++ authors' IP-Adapter preprocessing (`docs/weights.md`, "IP-Adapter
+/// (enhancer)"): `CLIPImageProcessor` fed a float image already in `[0, 1]`, which it rescales
+/// by 1/255 a second time, so CLIP sees an almost black image (≈ −mean/std per channel; the
+/// image survives with an amplitude of at most 1/255 before normalisation).
+///
+/// `rgb` is `[height][width][3]` row-major with values in `[0, 1]`; returns `[3, size, size]`
+/// channel-major like [`preprocess`]. As transformers: the floats become 8-bit levels
+/// `trunc(255·v)` for PIL's bicubic resize (an image holding only 0s and 1s is taken as
+/// 8-bit levels 0 and 1 instead, unscaled), the resized levels are divided by 255 (not for
+/// such a 0/1 image), centre-cropped, divided by 255 again and normalised with [`CLIP_MEAN`] /
+/// [`CLIP_STD`]. Values outside `[0, 1]` (or NaN) are an error, as in transformers. The
+/// resize is [`preprocess`]'s (f64 per pass, rounded to 8 bits like PIL, which works in fixed
+/// point): where a value sits at a rounding edge a level may differ by one, 1/255²/std ≈ 6e-5
+/// here (none did on the parity fixture).
+pub fn preprocess_rescaled_twice(rgb: &[f32], width: usize, height: usize, size: usize) -> Result<Vec<f32>, Error> {
+    if let Some(v) = rgb.iter().find(|v| !(0.0..=1.0).contains(*v)) {
+        return Err(Error::invalid("image", format!("values in [0, 1] (found {v})")));
+    }
+    // transformers' `_rescale_for_pil_conversion`: values `np.allclose` to their integer
+    // truncation (in [0, 1]: ≤ 1e-8 or exactly 1) are 8-bit levels already.
+    let levels_already = rgb.iter().all(|&v| v <= 1e-8 || v == 1.0);
+    let levels: Vec<f32> = if levels_already {
+        rgb.iter().map(|v| v.trunc()).collect()
+    } else {
+        rgb.iter().map(|v| (v * 255.0).trunc()).collect()
+    };
+    let rescale = |v: f32| (f64::from(v) / 255.0) as f32;
+    resize_crop_normalize(&levels, width, height, size, |v| {
+        let v = if levels_already { v } else { rescale(v) };
+        rescale(v)
+    })
+}
+
+/// Bicubic resize of the shorter side to `size` and centre crop of 8-bit levels `rgb`
+/// (`[height][width][3]`), each level mapped by `scale` into `[0, 1]`-ish values and
+/// normalised with [`CLIP_MEAN`] / [`CLIP_STD`]: `[3, size, size]`.
+fn resize_crop_normalize(
+    rgb: &[f32],
+    width: usize,
+    height: usize,
+    size: usize,
+    scale: impl Fn(f32) -> f32,
+) -> Result<Vec<f32>, Error> {
     if width == 0 || height == 0 || rgb.len() != width * height * 3 {
         return Err(Error::invalid(
             "image",
@@ -255,7 +301,7 @@ pub fn preprocess(rgb: &[f32], width: usize, height: usize, size: usize) -> Resu
     for ch in 0..3 {
         for y in 0..size {
             for x in 0..size {
-                let v = resized[((top + y) * new_w + left + x) * 3 + ch] / 255.0;
+                let v = scale(resized[((top + y) * new_w + left + x) * 3 + ch]);
                 out[(ch * size + y) * size + x] = (v - CLIP_MEAN[ch]) / CLIP_STD[ch];
             }
         }

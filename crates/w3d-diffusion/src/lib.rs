@@ -1,7 +1,8 @@
 //! Diffusion models of wonder3d-rs on Burn 0.22: the Stable-Diffusion-image-variations UNet
 //! (`UNet2DConditionModel`, with the projection class embedding Wonder3D's switchers use), the
 //! `AutoencoderKL` VAE, the CLIP vision encoder with projection and its preprocessing, the CLIP
-//! text encoder ([`ClipText`]) and its BPE tokenizer ([`ClipTokenizer`]), DDIM and
+//! text encoder ([`ClipText`]) and its BPE tokenizer ([`ClipTokenizer`]), the IP-Adapter image
+//! prompt of the enhancer ([`ip_adapter`]), DDIM and
 //! DPM-Solver++(2M) sampling with classifier-free guidance and DDIM inversion (exactly as
 //! diffusers), and
 //! streaming `.safetensors` loading with the diffusers / transformers key names. The UNet is
@@ -42,6 +43,7 @@ pub mod clip_text;
 pub mod config;
 mod cpu_attention;
 pub mod device;
+pub mod ip_adapter;
 pub mod multiview;
 pub mod nn;
 pub mod scheduler;
@@ -53,7 +55,10 @@ pub mod vae;
 pub mod weights;
 
 pub use burn::tensor::{Device, Tensor, TensorData};
-pub use clip::{CLIP_MEAN, CLIP_STD, ClipVision, preprocess as clip_preprocess};
+pub use clip::{
+    CLIP_MEAN, CLIP_STD, ClipVision, preprocess as clip_preprocess,
+    preprocess_rescaled_twice as clip_preprocess_rescaled_twice,
+};
 pub use clip_text::ClipText;
 pub use config::{
     AUTHORS_INFERENCE_UNET_KWARGS, ClipTextConfig, ClipVisionConfig, ConfigDifference, InferenceOverride, PerBlock,
@@ -62,6 +67,7 @@ pub use config::{
 #[cfg(feature = "wgpu")]
 pub use device::gpu_device;
 pub use device::{ComputeDevice, OpenedDevice};
+pub use ip_adapter::{ImageProjection, IpTokens};
 pub use multiview::{
     CameraType, Conditioning, Domain, GeneratedViews, MultiViewPipeline, SampleOptions, prepare_input,
     prepare_input_on, quantize_u8, switcher_labels, task_labels,
@@ -71,7 +77,7 @@ pub use scheduler::{
     classifier_free_guidance, ddim_invert, ddim_sample, gaussian_noise,
 };
 pub use tokenizer::ClipTokenizer;
-pub use unet::UNet;
+pub use unet::{UNet, UNetExtra};
 pub use vae::Vae;
 pub use weights::{NamedParam, NamedValues, Precision, SafetensorsFile, WeightStorage};
 

@@ -35,7 +35,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 use w3d_core::Error;
 
 use crate::blocks::{
-    Downsample, ResnetBlock, ResnetShape, SpatialTransformer, TimestepEmbedding, TransformerShape, Upsample,
+    Attention, Downsample, ResnetBlock, ResnetShape, SpatialTransformer, TimestepEmbedding, TransformerShape, Upsample,
 };
 use crate::config::UNetConfig;
 use crate::nn::{Conv2d, GroupNorm};
@@ -56,6 +56,14 @@ struct UpBlock {
     resnets: Vec<ResnetBlock>,
     attentions: Vec<SpatialTransformer>,
     upsampler: Option<Upsample>,
+}
+
+/// Extra conditioning of one UNet call, beyond the tokens and class labels (Default: none).
+#[derive(Clone, Debug, Default)]
+pub struct UNetExtra {
+    /// IP-Adapter image tokens and scale for the decoupled cross-attention (needs a UNet with
+    /// an adapter, [`UNet::load_ip_adapter`]).
+    pub ip: Option<crate::ip_adapter::IpTokens>,
 }
 
 /// The conditional UNet (see the module docs for shapes).
@@ -349,6 +357,21 @@ impl UNet {
         context: Tensor<3>,
         class_labels: Option<Tensor<2>>,
     ) -> Result<Tensor<4>, Error> {
+        self.forward_with(sample, timesteps, context, class_labels, &UNetExtra::default())
+    }
+
+    /// `forward` with extra conditioning (validated: shapes, and that the model has what `extra`
+    /// needs). With `extra.ip` the tokens are `[n, n_ip, cross_attention_dim]`, one row per
+    /// sample row, and every cross-attention adds their decoupled image attention; the UNet
+    /// must have an IP-Adapter ([`UNet::load_ip_adapter`]).
+    pub fn forward_with(
+        &self,
+        sample: Tensor<4>,
+        timesteps: &[f32],
+        context: Tensor<3>,
+        class_labels: Option<Tensor<2>>,
+        extra: &UNetExtra,
+    ) -> Result<Tensor<4>, Error> {
         let c = &self.config;
         let [n, channels, h, w] = sample.dims();
         if channels != c.in_channels {
@@ -375,6 +398,10 @@ impl UNet {
                 "context",
                 format!("[{n}, tokens, {}] (found {:?})", c.cross_attention_dim, context.dims()),
             ));
+        }
+        let ip = extra.ip.as_ref();
+        if let Some(ip) = ip {
+            self.check_ip_tokens(ip, n)?;
         }
         let timesteps: Vec<f32> = match timesteps.len() {
             1 => vec![timesteps[0]; n],
@@ -404,7 +431,7 @@ impl UNet {
             for (j, resnet) in block.resnets.iter().enumerate() {
                 x = resnet.forward(x, Some(&temb));
                 if let Some(attn) = block.attentions.get(j) {
-                    x = attn.forward(x, &context);
+                    x = attn.forward_with_ip(x, &context, ip);
                 }
                 skips.push(x.clone());
             }
@@ -414,14 +441,14 @@ impl UNet {
             }
         }
         x = self.mid_resnets[0].forward(x, Some(&temb));
-        x = self.mid_attention.forward(x, &context);
+        x = self.mid_attention.forward_with_ip(x, &context, ip);
         x = self.mid_resnets[1].forward(x, Some(&temb));
         for block in &self.up_blocks {
             for (j, resnet) in block.resnets.iter().enumerate() {
                 let skip = skips.pop().ok_or_else(|| Error::invalid("unet", "a skip connection per up ResNet"))?;
                 x = resnet.forward(Tensor::cat(vec![x, skip], 1), Some(&temb));
                 if let Some(attn) = block.attentions.get(j) {
-                    x = attn.forward(x, &context);
+                    x = attn.forward_with_ip(x, &context, ip);
                 }
             }
             if let Some(up) = &block.upsampler {
@@ -429,6 +456,43 @@ impl UNet {
             }
         }
         Ok(self.conv_out.forward(self.conv_norm_out.forward_silu(x)))
+    }
+
+    /// Checks IP-Adapter tokens for a batch of `n` rows against this model.
+    fn check_ip_tokens(&self, ip: &crate::ip_adapter::IpTokens, n: usize) -> Result<(), Error> {
+        if !self.has_ip_adapter() {
+            return Err(Error::invalid("ip", "none (the UNet has no IP-Adapter; load one with UNet::load_ip_adapter)"));
+        }
+        let [rows, tokens, width] = ip.tokens.dims();
+        let cross = self.config.cross_attention_dim;
+        if rows != n || tokens == 0 || width != cross {
+            return Err(Error::invalid(
+                "ip.tokens",
+                format!("[{n}, tokens ≥ 1, {cross}], one row per sample row (found {:?})", ip.tokens.dims()),
+            ));
+        }
+        if !ip.scale.is_finite() {
+            return Err(Error::invalid("ip.scale", format!("a finite number (found {})", ip.scale)));
+        }
+        Ok(())
+    }
+
+    /// The cross-attention (`attn2`) layers in diffusers' module order (down blocks, up
+    /// blocks, then the mid block; blocks, transformers and transformer blocks in index
+    /// order): the order in which an IP-Adapter file numbers them.
+    pub(crate) fn cross_attentions(&self) -> impl Iterator<Item = &Attention> {
+        let down = self.down_blocks.iter().flat_map(|b| b.attentions.iter());
+        let up = self.up_blocks.iter().flat_map(|b| b.attentions.iter());
+        down.chain(up).chain(std::iter::once(&self.mid_attention)).flat_map(SpatialTransformer::cross_attentions)
+    }
+
+    /// [`UNet::cross_attentions`], mutable.
+    pub(crate) fn cross_attentions_mut(&mut self) -> impl Iterator<Item = &mut Attention> {
+        let down = self.down_blocks.iter_mut().flat_map(|b| b.attentions.iter_mut());
+        let up = self.up_blocks.iter_mut().flat_map(|b| b.attentions.iter_mut());
+        down.chain(up)
+            .chain(std::iter::once(&mut self.mid_attention))
+            .flat_map(SpatialTransformer::cross_attentions_mut)
     }
 }
 

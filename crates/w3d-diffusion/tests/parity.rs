@@ -13,6 +13,9 @@ mod common;
 mod conv;
 #[path = "parity_cases/full_size.rs"]
 mod full_size;
+// The IP-Adapter (enhancer) parity and error cases.
+#[path = "parity_cases/ip_adapter.rs"]
+mod ip_adapter;
 
 use common::{fixture, max_abs, max_abs_diff, tensor, test_devices, values};
 use w3d_diffusion::{ClipVision, SafetensorsFile, Tensor, TensorData, UNet, Vae, clip_preprocess};
