@@ -1,8 +1,8 @@
 //! Diffusion models of wonder3d-rs on Burn 0.22: the Stable-Diffusion-image-variations UNet
 //! (`UNet2DConditionModel`, with the projection class embedding Wonder3D's switchers use), the
-//! `AutoencoderKL` VAE, the CLIP vision encoder with projection and its preprocessing, DDIM and
-//! DPM-Solver++(2M) sampling with classifier-free guidance and DDIM inversion (exactly as
-//! diffusers), and
+//! `AutoencoderKL` VAE, the CLIP vision encoder with projection and its preprocessing, DDIM,
+//! DPM-Solver++(2M) and UniPC sampling (UniPC also as img2img / SDEdit) with classifier-free
+//! guidance and DDIM inversion (exactly as diffusers), and
 //! streaming `.safetensors` loading with the diffusers / transformers key names. The UNet is
 //! also Wonder3D++'s multi-view cross-domain `UNetMV2DConditionModel` (config fields
 //! `num_views`, `cd_attention_mid`, `cd_attention_last`; a multi-view `config.json` lacking a
@@ -63,8 +63,8 @@ pub use multiview::{
     prepare_input_on, quantize_u8, switcher_labels, task_labels,
 };
 pub use scheduler::{
-    DdimInverseScheduler, DdimScheduler, DpmSolverMultistepScheduler, Prediction, SamplerKind,
-    classifier_free_guidance, ddim_invert, ddim_sample, gaussian_noise,
+    DdimInverseScheduler, DdimScheduler, DpmSolverMultistepScheduler, Prediction, SamplerKind, UniPcMultistepScheduler,
+    classifier_free_guidance, ddim_invert, ddim_sample, gaussian_noise, img2img_begin_index,
 };
 pub use unet::UNet;
 pub use vae::Vae;
