@@ -22,7 +22,8 @@
 //!   (Python: a venv in `target/tools/evalvenv` with trimesh, point-cloud-utils, mesh2sdf,
 //!   scikit-image from PyPI). The outputs are committed; tests never need Python.
 //! - `cargo xtask fixtures diffusion`: regenerates the parity fixtures of `w3d-diffusion`
-//!   (tiny random-weight diffusers / transformers models, `xtask/python/fixtures_diffusion.py`)
+//!   (tiny random-weight diffusers / transformers models, `xtask/python/fixtures_diffusion.py`;
+//!   the UniPC scheduler, `xtask/python/fixtures_unipc.py`)
 //! - `cargo xtask fixtures photo`: builds the background-removal composite set (the RGBA
 //!   examples of `../shared/data/images` over six backdrops at two scales), scores
 //!   `w3d-photo` on it and writes `target/composites/composites.{json,md}` (the tables of
@@ -120,7 +121,7 @@ enum Task {
         /// Sampling steps.
         #[arg(long, default_value_t = 50)]
         steps: usize,
-        /// Sampler: ddim or dpmpp-2m.
+        /// Sampler: ddim, dpmpp-2m or unipc.
         #[arg(long, default_value = "ddim")]
         sampler: String,
         /// Classifier-free guidance scale.
@@ -544,7 +545,9 @@ fn fixtures(which: &str) -> Result<(), String> {
     }
     if which == "diffusion" {
         let root = workspace_root();
-        return run(Command::new(diffusion_python()?).current_dir(&root).arg("xtask/python/fixtures_diffusion.py"));
+        let python = diffusion_python()?;
+        run(Command::new(&python).current_dir(&root).arg("xtask/python/fixtures_diffusion.py"))?;
+        return run(Command::new(&python).current_dir(&root).arg("xtask/python/fixtures_unipc.py"));
     }
     if which != "eval" {
         return Err(format!("unknown fixture set {which:?}; expected `eval`, `diffusion` or `photo`"));

@@ -61,7 +61,8 @@ fn parse_args() -> Result<Args, String> {
                         let sampler = match sampler {
                             "ddim" => SamplerKind::Ddim,
                             "dpmpp-2m" => SamplerKind::DpmSolverPlusPlus2M,
-                            other => return Err(format!("--runs: sampler ddim or dpmpp-2m, got {other:?}")),
+                            "unipc" => SamplerKind::UniPc,
+                            other => return Err(format!("--runs: sampler ddim, dpmpp-2m or unipc, got {other:?}")),
                         };
                         let steps: usize = steps.parse().map_err(|_| format!("--runs: steps, got {steps:?}"))?;
                         if !(1..=1000).contains(&steps) {
@@ -184,6 +185,7 @@ fn run() -> Result<(), String> {
         let label = match sampler {
             SamplerKind::Ddim => "DDIM",
             SamplerKind::DpmSolverPlusPlus2M => "DPM-Solver++(2M)",
+            SamplerKind::UniPc => "UniPC",
         };
         let noise = gaussian_noise([6, c, h, w], 11, &device);
         let t = Instant::now();

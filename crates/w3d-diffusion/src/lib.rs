@@ -2,8 +2,8 @@
 //! (`UNet2DConditionModel`, with the projection class embedding Wonder3D's switchers use), the
 //! `AutoencoderKL` VAE, the CLIP vision encoder with projection and its preprocessing, the CLIP
 //! text encoder ([`ClipText`]) and its BPE tokenizer ([`ClipTokenizer`]), the IP-Adapter image
-//! prompt of the enhancer ([`ip_adapter`]), DDIM and
-//! DPM-Solver++(2M) sampling with classifier-free guidance and DDIM inversion (exactly as
+//! prompt of the enhancer ([`ip_adapter`]), DDIM, DPM-Solver++(2M) and UniPC sampling (UniPC
+//! also as img2img / SDEdit) with classifier-free guidance and DDIM inversion (exactly as
 //! diffusers), and
 //! streaming `.safetensors` loading with the diffusers / transformers key names. The UNet is
 //! also Wonder3D++'s multi-view cross-domain `UNetMV2DConditionModel` (config fields
@@ -73,8 +73,8 @@ pub use multiview::{
     prepare_input_on, quantize_u8, switcher_labels, task_labels,
 };
 pub use scheduler::{
-    DdimInverseScheduler, DdimScheduler, DpmSolverMultistepScheduler, Prediction, SamplerKind,
-    classifier_free_guidance, ddim_invert, ddim_sample, gaussian_noise,
+    DdimInverseScheduler, DdimScheduler, DpmSolverMultistepScheduler, Prediction, SamplerKind, UniPcMultistepScheduler,
+    classifier_free_guidance, ddim_invert, ddim_sample, gaussian_noise, img2img_begin_index,
 };
 pub use tokenizer::ClipTokenizer;
 pub use unet::{UNet, UNetExtra};

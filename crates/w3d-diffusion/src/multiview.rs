@@ -42,8 +42,8 @@ use w3d_core::{Error, Image, ViewImages, ViewRig, ViewSet};
 use crate::clip::{ClipVision, preprocess as clip_preprocess};
 use crate::config::SchedulerConfig;
 use crate::scheduler::{
-    DdimInverseScheduler, DdimScheduler, DpmSolverMultistepScheduler, SamplerKind, classifier_free_guidance,
-    ddim_invert, gaussian_noise,
+    DdimInverseScheduler, DdimScheduler, DpmSolverMultistepScheduler, SamplerKind, UniPcMultistepScheduler,
+    classifier_free_guidance, ddim_invert, gaussian_noise,
 };
 use crate::unet::UNet;
 use crate::vae::Vae;
@@ -621,7 +621,7 @@ impl MultiViewPipeline {
         Ok(())
     }
 
-    /// Sampling (DDIM or DPM-Solver++(2M), per `options.sampler`) from `noise` down to clean latents `[12, c, h, w]` (`[normal × 6,
+    /// Sampling (DDIM, DPM-Solver++(2M) or UniPC, per `options.sampler`) from `noise` down to clean latents `[12, c, h, w]` (`[normal × 6,
     /// colour × 6]`). `noise` is `[6, c, h, w]` (one latent per view, shared by both domains,
     /// as the authors sample) or `[12, c, h, w]` (per domain, e.g. from
     /// [`MultiViewPipeline::invert`]). `progress(done, total)` is called after every step.
@@ -653,6 +653,15 @@ impl MultiViewPipeline {
             }
             SamplerKind::DpmSolverPlusPlus2M => {
                 let mut scheduler = DpmSolverMultistepScheduler::new(self.scheduler.clone(), options.steps)?;
+                let timesteps = scheduler.timesteps().to_vec();
+                for (i, &t) in timesteps.iter().enumerate() {
+                    let eps = self.predict(x.clone(), t, cond, &labels, options.guidance)?;
+                    x = scheduler.step(eps, t, x)?;
+                    progress(i + 1, timesteps.len());
+                }
+            }
+            SamplerKind::UniPc => {
+                let mut scheduler = UniPcMultistepScheduler::new(self.scheduler.clone(), options.steps)?;
                 let timesteps = scheduler.timesteps().to_vec();
                 for (i, &t) in timesteps.iter().enumerate() {
                     let eps = self.predict(x.clone(), t, cond, &labels, options.guidance)?;

@@ -1,11 +1,14 @@
 //! DDIM and DDIM inversion against diffusers: timesteps identical, ᾱ schedules, single steps
 //! (eta, v-prediction, clipping), a 10-step guided sampling trajectory and a 10-step inversion
-//! with the tiny UNet, and a 50-step inversion round trip.
+//! with the tiny UNet, and a 50-step inversion round trip. DPM-Solver++(2M) and UniPC are in
+//! `scheduler_cases/`.
 
 mod common;
-// The dpm_solver tests share this test binary (one link instead of two).
+// The dpm_solver and unipc tests share this test binary (one link instead of three).
 #[path = "scheduler_cases/dpm_solver.rs"]
 mod dpm_solver;
+#[path = "scheduler_cases/unipc.rs"]
+mod unipc;
 
 use common::{fixture, max_abs_diff, tensor, test_devices, values};
 use w3d_diffusion::{
@@ -51,8 +54,9 @@ fn beta_schedules_match_diffusers() {
     let cosine = DdimScheduler::new(cosine, 10).unwrap();
     for (name, ours) in [("scaled_linear", sd.alphas_cumprod()), ("cosine", cosine.alphas_cumprod())] {
         let (expected, _) = file.read_f32(&format!("alphas_cumprod_{name}")).unwrap();
+        // Bit for bit: the schedule emulates torch's float32 linspace and cumprod.
         let err = ours.iter().zip(&expected).map(|(a, b)| (a - *b as f64).abs()).fold(0.0, f64::max);
-        assert!(err < 1e-6, "{name}: {err}");
+        assert_eq!(err, 0.0, "{name}");
     }
 }
 

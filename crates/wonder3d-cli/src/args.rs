@@ -76,6 +76,9 @@ pub enum SchedulerArg {
     /// DPM-Solver++(2M): deterministic, about 20 steps for DDIM's 50.
     #[value(name = "dpmpp-2m")]
     DpmPp2m,
+    /// UniPC-bh2 predictor–corrector: deterministic, few steps like dpmpp-2m (the enhancer's sampler).
+    #[value(name = "unipc")]
+    Unipc,
 }
 
 /// Orients a closed mesh read from `path` outward ([`wonder3d::Mesh::orient_outward`]),

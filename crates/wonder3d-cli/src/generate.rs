@@ -1,5 +1,5 @@
 //! `wonder3d generate IMAGE --weights DIR --out VIEWS_DIR [--camera ortho|persp]
-//! [--scheduler ddim|dpmpp-2m] [--steps N] [--guidance G] [--eta E] [--seed S] [--device cpu|wgpu]
+//! [--scheduler ddim|dpmpp-2m|unipc] [--steps N] [--guidance G] [--eta E] [--seed S] [--device cpu|wgpu]
 //! [--min-confidence C]`: the 6 normal + 6 colour views of a photo or RGBA image from the
 //! Wonder3D++ multi-view diffusion model, written as a view-set folder with a contact sheet.
 //! The image is prepared as `wonder3d prepare` does first.
@@ -35,13 +35,13 @@ pub struct SamplingArgs {
     /// Sampling algorithm.
     #[arg(long, value_enum, default_value_t = SchedulerArg::Ddim)]
     pub scheduler: SchedulerArg,
-    /// Sampling steps (50 is the authors' DDIM setting; 20 with dpmpp-2m).
+    /// Sampling steps (50 is the authors' DDIM setting; 20 with dpmpp-2m or unipc).
     #[arg(long, default_value_t = 50, allow_hyphen_values = true, value_parser = crate::args::steps)]
     pub steps: usize,
     /// Classifier-free guidance scale (1 = no unconditional branch).
     #[arg(long, default_value_t = 2.0, allow_hyphen_values = true, value_parser = crate::args::guidance)]
     pub guidance: f64,
-    /// DDIM eta: 0 deterministic, 1 the reference's stochastic sampling (dpmpp-2m ignores it).
+    /// DDIM eta: 0 deterministic, 1 the reference's stochastic sampling (dpmpp-2m and unipc ignore it).
     #[arg(long, default_value_t = 1.0, allow_hyphen_values = true, value_parser = crate::args::eta)]
     pub eta: f64,
     /// Seed of all sampling noise (the same seed gives the same views).
@@ -107,6 +107,7 @@ mod with_model {
         let sampler = match args.scheduler {
             SchedulerArg::Ddim => SamplerKind::Ddim,
             SchedulerArg::DpmPp2m => SamplerKind::DpmSolverPlusPlus2M,
+            SchedulerArg::Unipc => SamplerKind::UniPc,
         };
         let options = SampleOptions {
             sampler,

@@ -88,7 +88,7 @@ pub struct ItemOptions {
     pub steps: Option<usize>,
     /// Classifier-free guidance scale.
     pub guidance: Option<f64>,
-    /// Sampler name (`ddim` or `dpmpp-2m`).
+    /// Sampler name (`ddim`, `dpmpp-2m` or `unipc`).
     pub sampler: Option<String>,
     /// Camera type of the generated views (`ortho` or `persp`).
     pub camera: Option<String>,
@@ -129,7 +129,7 @@ struct ItemLine {
 /// The items of a batch, in order. Each non-empty line that does not start with `#` is one
 /// item: either a path (an image file or a view-set folder), or a JSON object
 /// `{"input": PATH, "id": ..., "kind": "image"|"views", "preset": "fast"|"default"|"quality",
-/// "texture_size": N, "seed": N, "steps": N, "guidance": G, "sampler": "ddim"|"dpmpp-2m",
+/// "texture_size": N, "seed": N, "steps": N, "guidance": G, "sampler": "ddim"|"dpmpp-2m"|"unipc",
 /// "camera": "ortho"|"persp"}` where only `input` is required (JSON lines). Ids default to
 /// the input path as written, without its extension, with every character outside
 /// `A-Z a-z 0-9 . _ -` replaced by `_`; they must be unique. The kind defaults to

@@ -136,7 +136,7 @@ pub struct Report {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 #[non_exhaustive]
 pub struct GenerationReport {
-    /// Sampling algorithm (`ddim` or `dpmpp-2m`).
+    /// Sampling algorithm (`ddim`, `dpmpp-2m` or `unipc`).
     pub sampler: String,
     /// Sampling steps.
     pub steps: usize,
