@@ -23,6 +23,8 @@
 //!   scikit-image from PyPI). The outputs are committed; tests never need Python.
 //! - `cargo xtask fixtures diffusion`: regenerates the parity fixtures of `w3d-diffusion`
 //!   (tiny random-weight diffusers / transformers models, `xtask/python/fixtures_diffusion.py`)
+//! - `cargo xtask fixtures controlnet`: regenerates the ControlNet parity fixtures of
+//!   `w3d-diffusion` (`xtask/python/fixtures_controlnet.py`)
 //! - `cargo xtask fixtures photo`: builds the background-removal composite set (the RGBA
 //!   examples of `../shared/data/images` over six backdrops at two scales), scores
 //!   `w3d-photo` on it and writes `target/composites/composites.{json,md}` (the tables of
@@ -160,7 +162,7 @@ enum Task {
     },
     /// Regenerate committed test fixtures with the Python peer tools.
     Fixtures {
-        /// Which fixtures: `eval`, `diffusion` or `photo`.
+        /// Which fixtures: `eval`, `diffusion`, `controlnet` or `photo`.
         which: String,
     },
     /// Draw the SVG charts in docs/ (speed against accuracy) from target/bench/*.json.
@@ -546,8 +548,12 @@ fn fixtures(which: &str) -> Result<(), String> {
         let root = workspace_root();
         return run(Command::new(diffusion_python()?).current_dir(&root).arg("xtask/python/fixtures_diffusion.py"));
     }
+    if which == "controlnet" {
+        let root = workspace_root();
+        return run(Command::new(diffusion_python()?).current_dir(&root).arg("xtask/python/fixtures_controlnet.py"));
+    }
     if which != "eval" {
-        return Err(format!("unknown fixture set {which:?}; expected `eval`, `diffusion` or `photo`"));
+        return Err(format!("unknown fixture set {which:?}; expected `eval`, `diffusion`, `controlnet` or `photo`"));
     }
     let root = workspace_root();
     let venv = root.join("target").join("tools").join("evalvenv");

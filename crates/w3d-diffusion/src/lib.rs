@@ -8,7 +8,9 @@
 //! `num_views`, `cd_attention_mid`, `cd_attention_last`; a multi-view `config.json` lacking a
 //! field the authors' inference passes explicitly gets their value, see
 //! [`UNetConfig::from_value`]), and [`MultiViewPipeline`] turns one RGBA image into 6 views
-//! × {normal, colour} and a `w3d_core::ViewSet` ([`multiview`]).
+//! × {normal, colour} and a `w3d_core::ViewSet` ([`multiview`]). For the refinement stage's
+//! enhancer, [`ControlNet`] is diffusers' `ControlNetModel` with Wonder3D++'s cross-domain
+//! attention ([`controlnet`]); [`UNet::forward_with`] adds its residuals ([`UNetExtra`]).
 //!
 //! Configs deserialize the `config.json` files of a diffusers checkpoint directory as they are
 //! (apart from those multi-view defaults);
@@ -38,6 +40,7 @@
 pub mod blocks;
 pub mod clip;
 pub mod config;
+pub mod controlnet;
 mod cpu_attention;
 pub mod device;
 pub mod multiview;
@@ -52,9 +55,10 @@ pub mod weights;
 pub use burn::tensor::{Device, Tensor, TensorData};
 pub use clip::{CLIP_MEAN, CLIP_STD, ClipVision, preprocess as clip_preprocess};
 pub use config::{
-    AUTHORS_INFERENCE_UNET_KWARGS, ClipVisionConfig, ConfigDifference, InferenceOverride, PerBlock, SchedulerConfig,
-    UNetConfig, VaeConfig,
+    AUTHORS_INFERENCE_UNET_KWARGS, ClipVisionConfig, ConfigDifference, ControlNetConfig, InferenceOverride, PerBlock,
+    SchedulerConfig, UNetConfig, VaeConfig,
 };
+pub use controlnet::{ControlNet, ControlResiduals};
 #[cfg(feature = "wgpu")]
 pub use device::gpu_device;
 pub use device::{ComputeDevice, OpenedDevice};
@@ -66,7 +70,7 @@ pub use scheduler::{
     DdimInverseScheduler, DdimScheduler, DpmSolverMultistepScheduler, Prediction, SamplerKind,
     classifier_free_guidance, ddim_invert, ddim_sample, gaussian_noise,
 };
-pub use unet::UNet;
+pub use unet::{UNet, UNetExtra};
 pub use vae::Vae;
 pub use weights::{NamedParam, NamedValues, Precision, SafetensorsFile, WeightStorage};
 

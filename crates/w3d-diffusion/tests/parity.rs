@@ -1,10 +1,13 @@
 //! Parity with diffusers / transformers on tiny random-weight models (fixtures from
 //! `cargo xtask fixtures diffusion`): UNet, VAE encode/decode, CLIP image embeddings and
-//! preprocessing, each within 1e-4 max-abs on both CPU backends.
+//! preprocessing, each within 1e-4 max-abs on both CPU backends; the ControlNet and the UNet
+//! with its residuals (`parity_cases/controlnet.rs`).
 
 #[path = "parity_cases/attention.rs"]
 mod attention;
 mod common;
+#[path = "parity_cases/controlnet.rs"]
+mod controlnet;
 // The conv tests share this test binary (one link instead of two).
 #[path = "parity_cases/conv.rs"]
 mod conv;
