@@ -22,8 +22,9 @@
 //!   (Python: a venv in `target/tools/evalvenv` with trimesh, point-cloud-utils, mesh2sdf,
 //!   scikit-image from PyPI). The outputs are committed; tests never need Python.
 //! - `cargo xtask fixtures diffusion`: regenerates the parity fixtures of `w3d-diffusion`
-//!   (tiny random-weight diffusers / transformers models, `xtask/python/fixtures_diffusion.py`;
-//!   the UniPC scheduler, `xtask/python/fixtures_unipc.py`)
+//!   (tiny random-weight diffusers / transformers models: `xtask/python/fixtures_diffusion.py`,
+//!   then the UniPC, CLIP text, IP-Adapter, ControlNet and whole-enhancer scripts
+//!   `fixtures_{unipc,clip_text,ip_adapter,controlnet,enhancer}.py`, in that order)
 //! - `cargo xtask fixtures photo`: builds the background-removal composite set (the RGBA
 //!   examples of `../shared/data/images` over six backdrops at two scales), scores
 //!   `w3d-photo` on it and writes `target/composites/composites.{json,md}` (the tables of
@@ -546,8 +547,12 @@ fn fixtures(which: &str) -> Result<(), String> {
     if which == "diffusion" {
         let root = workspace_root();
         let python = diffusion_python()?;
-        run(Command::new(&python).current_dir(&root).arg("xtask/python/fixtures_diffusion.py"))?;
-        return run(Command::new(&python).current_dir(&root).arg("xtask/python/fixtures_unipc.py"));
+        // The enhancer's fixture reuses the clip_text fixture's tokenizer and text encoder and
+        // the ControlNet script's joint attention, so it runs last.
+        for script in ["diffusion", "unipc", "clip_text", "ip_adapter", "controlnet", "enhancer"] {
+            run(Command::new(&python).current_dir(&root).arg(format!("xtask/python/fixtures_{script}.py")))?;
+        }
+        return Ok(());
     }
     if which != "eval" {
         return Err(format!("unknown fixture set {which:?}; expected `eval`, `diffusion` or `photo`"));

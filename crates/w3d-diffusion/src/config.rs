@@ -589,6 +589,162 @@ fn json_equal(a: &serde_json::Value, b: &serde_json::Value) -> bool {
     }
 }
 
+fn default_cond_embedding_channels() -> Vec<usize> {
+    vec![16, 32, 96, 256]
+}
+fn default_rgb() -> String {
+    "rgb".into()
+}
+
+/// `ControlNetModel` config (the `config.json` of a diffusers ControlNet folder, e.g.
+/// Wonder3D++'s `mv_controlnet/`, `docs/weights.md`). A ControlNet is the down half of the UNet
+/// it was made from (`ControlNetModel.from_unet` copies the config fields and the weights of
+/// `conv_in`, the time embedding, the down blocks and the mid block) plus a condition
+/// embedding and zero convolutions, so those fields are held as that UNet's [`UNetConfig`] and
+/// read and checked by the same rules. Nothing here records Wonder3D++'s cross-domain
+/// attention: a ControlNet has it when its weights do.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ControlNetConfig {
+    /// The fields shared with the UNet (`in_channels`, `block_out_channels`,
+    /// `down_block_types`, heads, norms, …). Its `up_block_types` mirror the down blocks
+    /// (`CrossAttnUpBlock2D` / `UpBlock2D`, unused: a ControlNet has no up path) and
+    /// `out_channels` keeps its default.
+    pub unet: UNetConfig,
+    /// Channels of the control image (3).
+    pub conditioning_channels: usize,
+    /// Channels of the condition embedding's convolutions (`[16, 32, 96, 256]` for SD1.5):
+    /// every entry after the first halves the side, so the control image is
+    /// [`ControlNetConfig::control_downscale`] times the latent's side.
+    pub conditioning_embedding_out_channels: Vec<usize>,
+    /// `rgb`, or `bgr` (the control image's channels are then reversed first, as diffusers).
+    pub controlnet_conditioning_channel_order: String,
+    /// Must be false: mean-pooled residuals (diffusers' shuffle ControlNets) are not supported.
+    pub global_pool_conditions: bool,
+}
+
+/// The ControlNet-only fields of its `config.json`, with the `ControlNetModel` defaults.
+#[derive(Deserialize)]
+struct ControlNetFields {
+    #[serde(default = "default_three")]
+    conditioning_channels: usize,
+    #[serde(default = "default_cond_embedding_channels")]
+    conditioning_embedding_out_channels: Vec<usize>,
+    #[serde(default = "default_rgb")]
+    controlnet_conditioning_channel_order: String,
+    #[serde(default)]
+    global_pool_conditions: bool,
+}
+
+/// `ControlNetModel` options that must keep their default (`null`), beyond the UNet's.
+const CONTROLNET_DEFAULT_ONLY: &[&str] = &["encoder_hid_dim_type", "addition_time_embed_dim"];
+
+impl ControlNetConfig {
+    /// Parses and validates a ControlNet `config.json`.
+    pub fn from_file(path: impl AsRef<Path>) -> Result<Self, Error> {
+        let path = path.as_ref();
+        let value: serde_json::Value = read_json(path)?;
+        Self::from_value(value).map_err(|e| e.in_file(path))
+    }
+
+    /// Parses and validates a ControlNet config (a JSON object as diffusers writes it).
+    pub fn from_value(mut value: serde_json::Value) -> Result<Self, Error> {
+        let fields = ControlNetFields::deserialize(&value)
+            .map_err(|e| Error::invalid("config", format!("a valid ControlNet config ({e})")))?;
+        let object = value.as_object_mut().ok_or_else(|| Error::invalid("config", "a JSON object"))?;
+        if let Some(class) = object.get("_class_name")
+            && class.as_str() != Some("ControlNetModel")
+        {
+            return Err(unsupported("_class_name", class, "ControlNetModel"));
+        }
+        for key in [
+            "conditioning_channels",
+            "conditioning_embedding_out_channels",
+            "controlnet_conditioning_channel_order",
+            "global_pool_conditions",
+        ] {
+            object.remove(key);
+        }
+        let up: Vec<serde_json::Value> = match object.get("down_block_types").and_then(|v| v.as_array()) {
+            Some(down) => down
+                .iter()
+                .rev()
+                .map(|kind| match kind.as_str() {
+                    Some(k) if k.starts_with("CrossAttn") => "CrossAttnUpBlock2D".into(),
+                    _ => "UpBlock2D".into(),
+                })
+                .collect(),
+            None => return Err(Error::invalid("down_block_types", "a list of down block kinds")),
+        };
+        object.insert("up_block_types".into(), serde_json::Value::Array(up));
+        let config = Self {
+            unet: UNetConfig::from_value(value)?,
+            conditioning_channels: fields.conditioning_channels,
+            conditioning_embedding_out_channels: fields.conditioning_embedding_out_channels,
+            controlnet_conditioning_channel_order: fields.controlnet_conditioning_channel_order,
+            global_pool_conditions: fields.global_pool_conditions,
+        };
+        config.validate()?;
+        Ok(config)
+    }
+
+    /// Checks that every field holds a supported value: the UNet fields as
+    /// [`UNetConfig::validate`], single-view Stable Diffusion blocks only
+    /// (`CrossAttnDownBlock2D` / `DownBlock2D`, `UNetMidBlock2DCrossAttn`), no class or
+    /// addition embedding (the enhancer's ControlNet is conditioned on text tokens only).
+    pub fn validate(&self) -> Result<(), Error> {
+        let u = &self.unet;
+        u.validate()?;
+        for (i, t) in u.down_block_types.iter().enumerate() {
+            if !matches!(t.as_str(), "CrossAttnDownBlock2D" | "DownBlock2D") {
+                return Err(unsupported(&format!("down_block_types[{i}]"), t, "CrossAttnDownBlock2D or DownBlock2D"));
+            }
+        }
+        if let Some(m) = &u.mid_block_type
+            && m != "UNetMidBlock2DCrossAttn"
+        {
+            return Err(unsupported("mid_block_type", m, "UNetMidBlock2DCrossAttn"));
+        }
+        if let Some(t) = &u.class_embed_type {
+            return Err(unsupported("class_embed_type", t, "absent (a ControlNet without class labels)"));
+        }
+        if u.num_views.is_some() || u.cross_domain() {
+            return Err(Error::invalid("num_views/cd_attention_mid/cd_attention_last", "absent (not UNet fields)"));
+        }
+        for field in CONTROLNET_DEFAULT_ONLY {
+            if let Some(v) = u.other.get(*field)
+                && !v.is_null()
+            {
+                return Err(unsupported(field, v, "null"));
+            }
+        }
+        in_range("conditioning_channels", self.conditioning_channels, MAX_WIDTH)?;
+        in_range(
+            "conditioning_embedding_out_channels (levels)",
+            self.conditioning_embedding_out_channels.len(),
+            MAX_LEVELS,
+        )?;
+        all_in_range("conditioning_embedding_out_channels", &self.conditioning_embedding_out_channels, MAX_WIDTH)?;
+        if !matches!(self.controlnet_conditioning_channel_order.as_str(), "rgb" | "bgr") {
+            return Err(unsupported(
+                "controlnet_conditioning_channel_order",
+                &self.controlnet_conditioning_channel_order,
+                "rgb or bgr",
+            ));
+        }
+        if self.global_pool_conditions {
+            return Err(unsupported("global_pool_conditions", true, "false"));
+        }
+        Ok(())
+    }
+
+    /// Ratio of the control image's side to the latent's side: `2^(len - 1)` of
+    /// `conditioning_embedding_out_channels` (8 for SD1.5, whose control image is the
+    /// 512² or 1024² picture of a 64² or 128² latent).
+    pub fn control_downscale(&self) -> usize {
+        1 << self.conditioning_embedding_out_channels.len().saturating_sub(1)
+    }
+}
+
 fn default_scaling() -> f64 {
     0.18215
 }

@@ -10,7 +10,9 @@
 //! `num_views`, `cd_attention_mid`, `cd_attention_last`; a multi-view `config.json` lacking a
 //! field the authors' inference passes explicitly gets their value, see
 //! [`UNetConfig::from_value`]), and [`MultiViewPipeline`] turns one RGBA image into 6 views
-//! × {normal, colour} and a `w3d_core::ViewSet` ([`multiview`]).
+//! × {normal, colour} and a `w3d_core::ViewSet` ([`multiview`]). For the refinement stage's
+//! enhancer, [`ControlNet`] is diffusers' `ControlNetModel` with Wonder3D++'s cross-domain
+//! attention ([`controlnet`]); [`UNet::forward_with`] adds its residuals ([`UNetExtra`]).
 //!
 //! Configs deserialize the `config.json` files of a diffusers checkpoint directory as they are
 //! (apart from those multi-view defaults);
@@ -41,6 +43,7 @@ pub mod blocks;
 pub mod clip;
 pub mod clip_text;
 pub mod config;
+pub mod controlnet;
 mod cpu_attention;
 pub mod device;
 pub mod ip_adapter;
@@ -61,9 +64,11 @@ pub use clip::{
 };
 pub use clip_text::ClipText;
 pub use config::{
-    AUTHORS_INFERENCE_UNET_KWARGS, ClipTextConfig, ClipVisionConfig, ConfigDifference, InferenceOverride, PerBlock,
+    AUTHORS_INFERENCE_UNET_KWARGS, ClipTextConfig, ClipVisionConfig, ConfigDifference, ControlNetConfig, InferenceOverride,
+    PerBlock,
     SchedulerConfig, UNetConfig, VaeConfig,
 };
+pub use controlnet::{ControlNet, ControlResiduals};
 #[cfg(feature = "wgpu")]
 pub use device::gpu_device;
 pub use device::{ComputeDevice, OpenedDevice};

@@ -4,7 +4,9 @@
 //! Input: latents `[n, in_channels, h, w]` (h, w multiples of `2^(levels-1)`), one timestep
 //! per image, conditioning tokens `[n, tokens, cross_attention_dim]` and, with
 //! `class_embed_type = "projection"`, class labels `[n, projection_class_embeddings_input_dim]`.
-//! Output: the prediction `[n, out_channels, h, w]`.
+//! Output: the prediction `[n, out_channels, h, w]`. [`UNet::forward_with`] also adds a
+//! ControlNet's residuals ([`UNetExtra`], [`crate::controlnet`]) to the skip connections and
+//! the mid block's output.
 //!
 //! Wonder3D's `UNetMV2DConditionModel` is the same network with multi-view block types
 //! (`CrossAttnDownBlockMV2D`, `UNetMidBlockMV2DCrossAttn`, `CrossAttnUpBlockMV2D`) and the
@@ -58,9 +60,224 @@ struct UpBlock {
     upsampler: Option<Upsample>,
 }
 
+/// The input convolution, time (and class) embedding, down blocks and mid block: the part of
+/// the UNet that a ControlNet copies (`ControlNetModel.from_unet`), built and run by one
+/// implementation for both ([`UNet`], [`crate::controlnet::ControlNet`]).
+#[derive(Module, Debug)]
+pub(crate) struct DownPath {
+    conv_in: Conv2d,
+    time_embedding: TimestepEmbedding,
+    class_embedding: Option<TimestepEmbedding>,
+    down_blocks: Vec<DownBlock>,
+    mid_resnets: Vec<ResnetBlock>,
+    mid_attention: SpatialTransformer,
+}
+
+/// The shape of the spatial transformers of down level `level` (the mid block's is the last
+/// level's) with `channels` channels; `multiview` for Wonder3D's multi-view block kinds, whose
+/// transformers get the multi-view and cross-domain attention the config asks for.
+pub(crate) fn transformer_shape(
+    c: &UNetConfig,
+    channels: usize,
+    level: usize,
+    multiview: bool,
+) -> Result<TransformerShape, Error> {
+    Ok(TransformerShape {
+        channels,
+        heads: c.heads(level)?,
+        layers: c.transformer_layers(level)?,
+        cross_dim: c.cross_attention_dim,
+        groups: c.norm_num_groups,
+        linear_projection: c.use_linear_projection,
+        views: if multiview && c.multiview_attention { c.views() } else { 1 },
+        cross_domain_mid: multiview && c.cd_attention_mid,
+        cross_domain_last: multiview && c.cd_attention_last,
+    })
+}
+
+impl DownPath {
+    /// Builds the down path of `c` (keys `conv_in`, `time_embedding`, `class_embedding`,
+    /// `down_blocks.*`, `mid_block.*`); `transformer(channels, level, multiview)` gives the
+    /// shape of each spatial transformer.
+    pub(crate) fn load(
+        c: &UNetConfig,
+        p: &mut ParamSource,
+        transformer: &dyn Fn(usize, usize, bool) -> Result<TransformerShape, Error>,
+    ) -> Result<Self, Error> {
+        let ch = &c.block_out_channels;
+        let levels = ch.len();
+        let temb = c.time_embed_dim();
+        let (groups, eps) = (c.norm_num_groups, c.norm_eps);
+        let resnet =
+            |c_in, c_out, scale| ResnetShape { c_in, c_out, temb: Some(temb), groups, eps, output_scale: scale };
+        let conv_in = Conv2d::load(p, "conv_in", c.in_channels, ch[0], 3, 1, 1, true);
+        let time_embedding = TimestepEmbedding::load(p, "time_embedding", ch[0], temb);
+        let class_embedding = match (c.class_embed_type.as_deref(), c.projection_class_embeddings_input_dim) {
+            (Some("projection"), Some(d)) => Some(TimestepEmbedding::load(p, "class_embedding", d, temb)),
+            _ => None,
+        };
+
+        let mut down_blocks = Vec::with_capacity(levels);
+        let mut c_prev = ch[0];
+        for (i, kind) in c.down_block_types.iter().enumerate() {
+            let c_out = ch[i];
+            let key = format!("down_blocks.{i}");
+            let mut resnets = Vec::new();
+            let mut attentions = Vec::new();
+            for j in 0..c.layers_per_block {
+                let c_in = if j == 0 { c_prev } else { c_out };
+                resnets.push(ResnetBlock::load(p, &format!("{key}.resnets.{j}"), resnet(c_in, c_out, 1.0)));
+                if kind.starts_with("CrossAttn") {
+                    attentions.push(SpatialTransformer::load(
+                        p,
+                        &format!("{key}.attentions.{j}"),
+                        transformer(c_out, i, UNetConfig::is_multiview_block(kind))?,
+                    ));
+                }
+            }
+            let downsampler = (i + 1 < levels)
+                .then(|| Downsample::load(p, &format!("{key}.downsamplers.0"), c_out, c.downsample_padding));
+            down_blocks.push(DownBlock { resnets, attentions, downsampler });
+            c_prev = c_out;
+        }
+
+        let c_mid = ch[levels - 1];
+        let scale = c.mid_block_scale_factor;
+        let mid_resnets = vec![
+            ResnetBlock::load(p, "mid_block.resnets.0", resnet(c_mid, c_mid, scale)),
+            ResnetBlock::load(p, "mid_block.resnets.1", resnet(c_mid, c_mid, scale)),
+        ];
+        let mid_attention = SpatialTransformer::load(
+            p,
+            "mid_block.attentions.0",
+            transformer(c_mid, levels - 1, c.multiview_mid_block())?,
+        );
+        Ok(Self { conv_in, time_embedding, class_embedding, down_blocks, mid_resnets, mid_attention })
+    }
+
+    /// Checks `sample [n, in_channels, h, w]` (h, w non-zero multiples of `2^(levels-1)`),
+    /// `context [n, tokens, cross_attention_dim]` and `timesteps` (one per image or one for
+    /// all); returns one timestep per image.
+    pub(crate) fn check_inputs(
+        c: &UNetConfig,
+        sample: &Tensor<4>,
+        timesteps: &[f32],
+        context: &Tensor<3>,
+    ) -> Result<Vec<f32>, Error> {
+        let [n, channels, h, w] = sample.dims();
+        if channels != c.in_channels {
+            return Err(Error::invalid("sample", format!("{} channels (found {channels})", c.in_channels)));
+        }
+        let multiple = 1 << (c.block_out_channels.len() - 1);
+        if h == 0 || w == 0 || !h.is_multiple_of(multiple) || !w.is_multiple_of(multiple) {
+            return Err(Error::invalid("sample", format!("height and width multiples of {multiple} (found {h}x{w})")));
+        }
+        let [cn, _, cw] = context.dims();
+        if cn != n || cw != c.cross_attention_dim {
+            return Err(Error::invalid(
+                "context",
+                format!("[{n}, tokens, {}] (found {:?})", c.cross_attention_dim, context.dims()),
+            ));
+        }
+        match timesteps.len() {
+            1 => Ok(vec![timesteps[0]; n]),
+            len if len == n => Ok(timesteps.to_vec()),
+            len => Err(Error::invalid("timesteps", format!("1 or {n} values (found {len})"))),
+        }
+    }
+
+    /// The shapes of the skip tensors [`DownPath::forward`] returns for an `[n, _, h, w]`
+    /// sample, in order: the `conv_in` output, then per level every ResNet (+ transformer)
+    /// output and the down-sampler's output (12 for Stable Diffusion 1.5). These are the
+    /// shapes of a ControlNet's down residuals.
+    pub(crate) fn skip_shapes(c: &UNetConfig, n: usize, h: usize, w: usize) -> Vec<[usize; 4]> {
+        let ch = &c.block_out_channels;
+        let mut shapes = vec![[n, ch[0], h, w]];
+        let (mut h, mut w) = (h, w);
+        for (i, &c_out) in ch.iter().enumerate() {
+            shapes.extend(std::iter::repeat_n([n, c_out, h, w], c.layers_per_block));
+            if i + 1 < ch.len() {
+                (h, w) = (h / 2, w / 2);
+                shapes.push([n, c_out, h, w]);
+            }
+        }
+        shapes
+    }
+
+    /// SiLU of the time embedding `[n, time_embed_dim]` of one timestep per image, plus the
+    /// class embedding of `class_labels` `[n, projection_class_embeddings_input_dim]` when the
+    /// model has one (then the labels are required; without one they are refused).
+    pub(crate) fn embed_time(
+        &self,
+        c: &UNetConfig,
+        timesteps: &[f32],
+        class_labels: Option<Tensor<2>>,
+        device: &Device,
+    ) -> Result<Tensor<2>, Error> {
+        let n = timesteps.len();
+        let mut temb = self.time_embedding.forward(timestep_features(c, timesteps, device));
+        match (&self.class_embedding, class_labels) {
+            (Some(embedding), Some(labels)) => {
+                let want = c.projection_class_embeddings_input_dim.unwrap_or(0);
+                if labels.dims() != [n, want] {
+                    return Err(Error::invalid("class_labels", format!("[{n}, {want}] (found {:?})", labels.dims())));
+                }
+                temb = temb + embedding.forward(labels);
+            }
+            (Some(_), None) => return Err(Error::invalid("class_labels", "labels for class_embed_type projection")),
+            (None, Some(_)) => return Err(Error::invalid("class_labels", "none (the model has no class embedding)")),
+            (None, None) => {}
+        }
+        Ok(silu(temb))
+    }
+
+    /// Runs `conv_in` on `sample` (checked by [`DownPath::check_inputs`]), adds `added` (a
+    /// ControlNet's condition embedding, `[n, block_out_channels[0], h, w]`), then the down
+    /// blocks and the mid block with `temb_silu` ([`DownPath::embed_time`]) and `context`.
+    /// Returns the skip tensors (shapes: [`DownPath::skip_shapes`]) and the mid block's
+    /// output.
+    pub(crate) fn forward(
+        &self,
+        c: &UNetConfig,
+        sample: Tensor<4>,
+        temb_silu: &Tensor<2>,
+        context: &Tensor<3>,
+        added: Option<Tensor<4>>,
+        ip: Option<&crate::ip_adapter::IpTokens>,
+    ) -> (Vec<Tensor<4>>, Tensor<4>) {
+        let temb = temb_silu;
+        let mut x = if c.center_input_sample { sample * 2.0 - 1.0 } else { sample };
+        x = self.conv_in.forward(x);
+        if let Some(added) = added {
+            x = x + added;
+        }
+        let mut skips = vec![x.clone()];
+        for block in &self.down_blocks {
+            for (j, resnet) in block.resnets.iter().enumerate() {
+                x = resnet.forward(x, Some(temb));
+                if let Some(attn) = block.attentions.get(j) {
+                    x = attn.forward_with_ip(x, context, ip);
+                }
+                skips.push(x.clone());
+            }
+            if let Some(down) = &block.downsampler {
+                x = down.forward(x);
+                skips.push(x.clone());
+            }
+        }
+        x = self.mid_resnets[0].forward(x, Some(temb));
+        x = self.mid_attention.forward_with_ip(x, context, ip);
+        x = self.mid_resnets[1].forward(x, Some(temb));
+        (skips, x)
+    }
+}
+
 /// Extra conditioning of one UNet call, beyond the tokens and class labels (Default: none).
 #[derive(Clone, Debug, Default)]
 pub struct UNetExtra {
+    /// ControlNet residuals added to the skip connections and the mid-block output
+    /// ([`crate::controlnet::ControlNet::forward`]; their shapes must be the UNet's skips').
+    pub control: Option<crate::controlnet::ControlResiduals>,
     /// IP-Adapter image tokens and scale for the decoupled cross-attention (needs a UNet with
     /// an adapter, [`UNet::load_ip_adapter`]).
     pub ip: Option<crate::ip_adapter::IpTokens>,
@@ -69,12 +286,7 @@ pub struct UNetExtra {
 /// The conditional UNet (see the module docs for shapes).
 #[derive(Module, Debug)]
 pub struct UNet {
-    conv_in: Conv2d,
-    time_embedding: TimestepEmbedding,
-    class_embedding: Option<TimestepEmbedding>,
-    down_blocks: Vec<DownBlock>,
-    mid_resnets: Vec<ResnetBlock>,
-    mid_attention: SpatialTransformer,
+    down: DownPath,
     up_blocks: Vec<UpBlock>,
     conv_norm_out: GroupNorm,
     conv_out: Conv2d,
@@ -222,61 +434,8 @@ impl UNet {
         let (groups, eps) = (c.norm_num_groups, c.norm_eps);
         let resnet =
             |c_in, c_out, scale| ResnetShape { c_in, c_out, temb: Some(temb), groups, eps, output_scale: scale };
-        let transformer = |channels, level: usize, multiview: bool| -> Result<TransformerShape, Error> {
-            Ok(TransformerShape {
-                channels,
-                heads: c.heads(level)?,
-                layers: c.transformer_layers(level)?,
-                cross_dim: c.cross_attention_dim,
-                groups,
-                linear_projection: c.use_linear_projection,
-                views: if multiview && c.multiview_attention { c.views() } else { 1 },
-                cross_domain_mid: multiview && c.cd_attention_mid,
-                cross_domain_last: multiview && c.cd_attention_last,
-            })
-        };
-        let conv_in = Conv2d::load(p, "conv_in", c.in_channels, ch[0], 3, 1, 1, true);
-        let time_embedding = TimestepEmbedding::load(p, "time_embedding", ch[0], temb);
-        let class_embedding = match (c.class_embed_type.as_deref(), c.projection_class_embeddings_input_dim) {
-            (Some("projection"), Some(d)) => Some(TimestepEmbedding::load(p, "class_embedding", d, temb)),
-            _ => None,
-        };
-
-        let mut down_blocks = Vec::with_capacity(levels);
-        let mut c_prev = ch[0];
-        for (i, kind) in c.down_block_types.iter().enumerate() {
-            let c_out = ch[i];
-            let key = format!("down_blocks.{i}");
-            let mut resnets = Vec::new();
-            let mut attentions = Vec::new();
-            for j in 0..c.layers_per_block {
-                let c_in = if j == 0 { c_prev } else { c_out };
-                resnets.push(ResnetBlock::load(p, &format!("{key}.resnets.{j}"), resnet(c_in, c_out, 1.0)));
-                if kind.starts_with("CrossAttn") {
-                    attentions.push(SpatialTransformer::load(
-                        p,
-                        &format!("{key}.attentions.{j}"),
-                        transformer(c_out, i, UNetConfig::is_multiview_block(kind))?,
-                    ));
-                }
-            }
-            let downsampler = (i + 1 < levels)
-                .then(|| Downsample::load(p, &format!("{key}.downsamplers.0"), c_out, c.downsample_padding));
-            down_blocks.push(DownBlock { resnets, attentions, downsampler });
-            c_prev = c_out;
-        }
-
-        let c_mid = ch[levels - 1];
-        let scale = c.mid_block_scale_factor;
-        let mid_resnets = vec![
-            ResnetBlock::load(p, "mid_block.resnets.0", resnet(c_mid, c_mid, scale)),
-            ResnetBlock::load(p, "mid_block.resnets.1", resnet(c_mid, c_mid, scale)),
-        ];
-        let mid_attention = SpatialTransformer::load(
-            p,
-            "mid_block.attentions.0",
-            transformer(c_mid, levels - 1, c.multiview_mid_block())?,
-        );
+        let transformer = |channels, level: usize, multiview: bool| transformer_shape(c, channels, level, multiview);
+        let down = DownPath::load(c, p, &transformer)?;
 
         let mut up_blocks = Vec::with_capacity(levels);
         let reversed: Vec<usize> = ch.iter().rev().copied().collect();
@@ -308,44 +467,13 @@ impl UNet {
 
         let conv_norm_out = GroupNorm::load(p, "conv_norm_out", groups, ch[0], eps);
         let conv_out = Conv2d::load(p, "conv_out", ch[0], c.out_channels, 3, 1, 1, true);
-        Ok(Self {
-            conv_in,
-            time_embedding,
-            class_embedding,
-            down_blocks,
-            mid_resnets,
-            mid_attention,
-            up_blocks,
-            conv_norm_out,
-            conv_out,
-            config: c.clone(),
-            names: Arc::default(),
-        })
+        Ok(Self { down, up_blocks, conv_norm_out, conv_out, config: c.clone(), names: Arc::default() })
     }
 
     /// Sinusoidal timestep features `[n, block_out_channels[0]]` (diffusers
     /// `get_timestep_embedding`, computed in f32 like diffusers).
     pub fn timestep_features(&self, timesteps: &[f32], device: &Device) -> Tensor<2> {
-        let dim = self.config.block_out_channels[0];
-        let half = dim / 2;
-        let shift = self.config.freq_shift as f32;
-        let ln = -(10000f64.ln()) as f32;
-        let freqs: Vec<f32> = (0..half).map(|i| ((ln * i as f32) / (half as f32 - shift)).exp()).collect();
-        let mut values = Vec::with_capacity(timesteps.len() * dim);
-        for &t in timesteps {
-            let args: Vec<f32> = freqs.iter().map(|f| t * f).collect();
-            let sin = args.iter().map(|a| a.sin());
-            let cos = args.iter().map(|a| a.cos());
-            if self.config.flip_sin_to_cos {
-                values.extend(cos.chain(sin));
-            } else {
-                values.extend(sin.chain(cos));
-            }
-            if dim % 2 == 1 {
-                values.push(0.0);
-            }
-        }
-        Tensor::from_data(TensorData::new(values, [timesteps.len(), dim]), device)
+        timestep_features(&self.config, timesteps, device)
     }
 
     /// Predicts noise (or v / x₀, per the scheduler) for `sample` at `timesteps` (one per image,
@@ -360,10 +488,13 @@ impl UNet {
         self.forward_with(sample, timesteps, context, class_labels, &UNetExtra::default())
     }
 
-    /// `forward` with extra conditioning (validated: shapes, and that the model has what `extra`
-    /// needs). With `extra.ip` the tokens are `[n, n_ip, cross_attention_dim]`, one row per
-    /// sample row, and every cross-attention adds their decoupled image attention; the UNet
-    /// must have an IP-Adapter ([`UNet::load_ip_adapter`]).
+    /// [`UNet::forward`] with extra conditioning (validated: shapes, and that the model has
+    /// what `extra` needs). ControlNet residuals (`extra.control`, diffusers'
+    /// `down_block_additional_residuals` / `mid_block_additional_residual`): residual `i` is
+    /// added to skip tensor `i` after the down pass, before the up blocks consume it, and the
+    /// mid residual to the mid block's output; their count and shapes must be those of the
+    /// skips for this `sample` (`[n, c, h, w]` per skip: 12 down residuals and a mid one for
+    /// Stable Diffusion 1.5).
     pub fn forward_with(
         &self,
         sample: Tensor<4>,
@@ -373,14 +504,8 @@ impl UNet {
         extra: &UNetExtra,
     ) -> Result<Tensor<4>, Error> {
         let c = &self.config;
-        let [n, channels, h, w] = sample.dims();
-        if channels != c.in_channels {
-            return Err(Error::invalid("sample", format!("{} channels (found {channels})", c.in_channels)));
-        }
-        let multiple = 1 << (c.block_out_channels.len() - 1);
-        if h == 0 || w == 0 || !h.is_multiple_of(multiple) || !w.is_multiple_of(multiple) {
-            return Err(Error::invalid("sample", format!("height and width multiples of {multiple} (found {h}x{w})")));
-        }
+        let timesteps = DownPath::check_inputs(c, &sample, timesteps, &context)?;
+        let [n, _, h, w] = sample.dims();
         let views = if c.multiview_attention { c.views() } else { 1 };
         let group = if c.cross_domain() { 2 * views } else { views };
         if !n.is_multiple_of(group) {
@@ -392,57 +517,21 @@ impl UNet {
                 ),
             ));
         }
-        let [cn, _, cw] = context.dims();
-        if cn != n || cw != c.cross_attention_dim {
-            return Err(Error::invalid(
-                "context",
-                format!("[{n}, tokens, {}] (found {:?})", c.cross_attention_dim, context.dims()),
-            ));
+        if let Some(control) = &extra.control {
+            check_residuals(c, control, n, h, w)?;
         }
         let ip = extra.ip.as_ref();
         if let Some(ip) = ip {
             self.check_ip_tokens(ip, n)?;
         }
-        let timesteps: Vec<f32> = match timesteps.len() {
-            1 => vec![timesteps[0]; n],
-            len if len == n => timesteps.to_vec(),
-            len => return Err(Error::invalid("timesteps", format!("1 or {n} values (found {len})"))),
-        };
         let device = sample.device();
-        let mut temb = self.time_embedding.forward(self.timestep_features(&timesteps, &device));
-        match (&self.class_embedding, class_labels) {
-            (Some(embedding), Some(labels)) => {
-                let want = c.projection_class_embeddings_input_dim.unwrap_or(0);
-                if labels.dims() != [n, want] {
-                    return Err(Error::invalid("class_labels", format!("[{n}, {want}] (found {:?})", labels.dims())));
-                }
-                temb = temb + embedding.forward(labels);
-            }
-            (Some(_), None) => return Err(Error::invalid("class_labels", "labels for class_embed_type projection")),
-            (None, Some(_)) => return Err(Error::invalid("class_labels", "none (the model has no class embedding)")),
-            (None, None) => {}
-        }
-        let temb = silu(temb);
+        let temb = self.down.embed_time(c, &timesteps, class_labels, &device)?;
 
-        let mut x = if c.center_input_sample { sample * 2.0 - 1.0 } else { sample };
-        x = self.conv_in.forward(x);
-        let mut skips = vec![x.clone()];
-        for block in &self.down_blocks {
-            for (j, resnet) in block.resnets.iter().enumerate() {
-                x = resnet.forward(x, Some(&temb));
-                if let Some(attn) = block.attentions.get(j) {
-                    x = attn.forward_with_ip(x, &context, ip);
-                }
-                skips.push(x.clone());
-            }
-            if let Some(down) = &block.downsampler {
-                x = down.forward(x);
-                skips.push(x.clone());
-            }
+        let (mut skips, mut x) = self.down.forward(c, sample, &temb, &context, None, ip);
+        if let Some(control) = &extra.control {
+            skips = skips.into_iter().zip(&control.down).map(|(skip, r)| skip + r.clone()).collect();
+            x = x + control.mid.clone();
         }
-        x = self.mid_resnets[0].forward(x, Some(&temb));
-        x = self.mid_attention.forward_with_ip(x, &context, ip);
-        x = self.mid_resnets[1].forward(x, Some(&temb));
         for block in &self.up_blocks {
             for (j, resnet) in block.resnets.iter().enumerate() {
                 let skip = skips.pop().ok_or_else(|| Error::invalid("unet", "a skip connection per up ResNet"))?;
@@ -481,19 +570,74 @@ impl UNet {
     /// blocks, then the mid block; blocks, transformers and transformer blocks in index
     /// order): the order in which an IP-Adapter file numbers them.
     pub(crate) fn cross_attentions(&self) -> impl Iterator<Item = &Attention> {
-        let down = self.down_blocks.iter().flat_map(|b| b.attentions.iter());
+        let down = self.down.down_blocks.iter().flat_map(|b| b.attentions.iter());
         let up = self.up_blocks.iter().flat_map(|b| b.attentions.iter());
-        down.chain(up).chain(std::iter::once(&self.mid_attention)).flat_map(SpatialTransformer::cross_attentions)
+        down.chain(up).chain(std::iter::once(&self.down.mid_attention)).flat_map(SpatialTransformer::cross_attentions)
     }
 
     /// [`UNet::cross_attentions`], mutable.
     pub(crate) fn cross_attentions_mut(&mut self) -> impl Iterator<Item = &mut Attention> {
-        let down = self.down_blocks.iter_mut().flat_map(|b| b.attentions.iter_mut());
+        let down = self.down.down_blocks.iter_mut().flat_map(|b| b.attentions.iter_mut());
         let up = self.up_blocks.iter_mut().flat_map(|b| b.attentions.iter_mut());
         down.chain(up)
-            .chain(std::iter::once(&mut self.mid_attention))
+            .chain(std::iter::once(&mut self.down.mid_attention))
             .flat_map(SpatialTransformer::cross_attentions_mut)
     }
+}
+
+/// Sinusoidal timestep features `[n, block_out_channels[0]]` of `c` (see
+/// [`UNet::timestep_features`]).
+pub(crate) fn timestep_features(c: &UNetConfig, timesteps: &[f32], device: &Device) -> Tensor<2> {
+    let dim = c.block_out_channels[0];
+    let half = dim / 2;
+    let shift = c.freq_shift as f32;
+    let ln = -(10000f64.ln()) as f32;
+    let freqs: Vec<f32> = (0..half).map(|i| ((ln * i as f32) / (half as f32 - shift)).exp()).collect();
+    let mut values = Vec::with_capacity(timesteps.len() * dim);
+    for &t in timesteps {
+        let args: Vec<f32> = freqs.iter().map(|f| t * f).collect();
+        let sin = args.iter().map(|a| a.sin());
+        let cos = args.iter().map(|a| a.cos());
+        if c.flip_sin_to_cos {
+            values.extend(cos.chain(sin));
+        } else {
+            values.extend(sin.chain(cos));
+        }
+        if dim % 2 == 1 {
+            values.push(0.0);
+        }
+    }
+    Tensor::from_data(TensorData::new(values, [timesteps.len(), dim]), device)
+}
+
+/// Checks ControlNet residuals against the skips of an `[n, _, h, w]` sample of `c`: one per
+/// skip with its exact shape, and a mid residual of the mid block's output shape.
+fn check_residuals(
+    c: &UNetConfig,
+    control: &crate::controlnet::ControlResiduals,
+    n: usize,
+    h: usize,
+    w: usize,
+) -> Result<(), Error> {
+    let shapes = DownPath::skip_shapes(c, n, h, w);
+    if control.down.len() != shapes.len() {
+        return Err(Error::invalid(
+            "control.down",
+            format!("{} residuals, one per skip connection (found {})", shapes.len(), control.down.len()),
+        ));
+    }
+    for (i, (r, want)) in control.down.iter().zip(&shapes).enumerate() {
+        if r.dims() != *want {
+            return Err(Error::invalid(format!("control.down[{i}]"), format!("shape {want:?} (found {:?})", r.dims())));
+        }
+    }
+    let levels = c.block_out_channels.len();
+    let side = 1 << (levels - 1);
+    let want = [n, c.block_out_channels[levels - 1], h / side, w / side];
+    if control.mid.dims() != want {
+        return Err(Error::invalid("control.mid", format!("shape {want:?} (found {:?})", control.mid.dims())));
+    }
+    Ok(())
 }
 
 /// Renames keys of older Wonder3D checkpoints to the current names, as the authors' loader

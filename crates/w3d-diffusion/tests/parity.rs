@@ -1,13 +1,17 @@
 //! Parity with diffusers / transformers on tiny random-weight models (fixtures from
 //! `cargo xtask fixtures diffusion`): UNet, VAE encode/decode, CLIP image embeddings and
 //! preprocessing, each within 1e-4 max-abs on both CPU backends; the CLIP text encoder and BPE
-//! tokenizer (`parity_cases/clip_text.rs`, fixtures from `xtask/python/fixtures_clip_text.py`).
+//! tokenizer (`parity_cases/clip_text.rs`); the ControlNet and the UNet with its residuals
+//! (`parity_cases/controlnet.rs`); the IP-Adapter (`parity_cases/ip_adapter.rs`); one whole
+//! enhancer call (`parity_cases/enhancer.rs`).
 
 #[path = "parity_cases/attention.rs"]
 mod attention;
 #[path = "parity_cases/clip_text.rs"]
 mod clip_text;
 mod common;
+#[path = "parity_cases/controlnet.rs"]
+mod controlnet;
 // The conv tests share this test binary (one link instead of two).
 #[path = "parity_cases/conv.rs"]
 mod conv;

@@ -1,5 +1,6 @@
 //! The real-size Wonder3D base configs parse; the real-size models instantiate and run one
-//! forward within 8 GiB peak memory, and one guided denoising step of the real-size
+//! forward within 8 GiB peak memory, the real-size ControlNet has the published parameter
+//! count, and one guided denoising step of the real-size
 //! multi-view UNet (12 images at 32×32 latents, 24 UNet images with guidance) is timed with its
 //! peak memory on each test backend, with f32 and with f16 weight storage (`W3D_STEP_WEIGHTS=f32` or
 //! `f16` for one of them; ignored by default: slow; run with
@@ -10,8 +11,8 @@ use std::time::Instant;
 
 use burn::module::Module;
 use w3d_diffusion::{
-    ClipVision, ClipVisionConfig, Conditioning, DdimScheduler, MultiViewPipeline, SampleOptions, SchedulerConfig,
-    Tensor, UNet, UNetConfig, Vae, VaeConfig, WeightStorage, gaussian_noise,
+    ClipVision, ClipVisionConfig, Conditioning, ControlNet, ControlNetConfig, DdimScheduler, MultiViewPipeline,
+    SampleOptions, SchedulerConfig, Tensor, UNet, UNetConfig, Vae, VaeConfig, WeightStorage, gaussian_noise,
 };
 
 use crate::common::test_devices;
@@ -40,6 +41,57 @@ fn real_configs_parse() {
     let scheduler = SchedulerConfig::from_file(config("scheduler/scheduler_config.json")).unwrap();
     assert_eq!(scheduler, SchedulerConfig::stable_diffusion());
     assert_eq!(DdimScheduler::new(scheduler, 50).unwrap().timesteps()[0], 981);
+    let controlnet = ControlNetConfig::from_file(config("mv_controlnet/config.json")).unwrap();
+    assert_eq!((controlnet.unet.heads(2).unwrap(), controlnet.control_downscale()), (8, 8));
+}
+
+/// Wonder3D++'s SD1.5 ControlNet at real size: the parameter counts of diffusers'
+/// `ControlNetModel` (361 279 120) and of the MVControlNet with its joint attention
+/// (385 053 200, the 1.54 GB f32 file), and one forward's 12 + 1 residual shapes.
+#[test]
+#[ignore = "slow: real-size ControlNet (~1.5 GB of weights)"]
+fn real_size_controlnet_has_the_published_parameter_count() {
+    let device = w3d_diffusion::default_device();
+    let c = ControlNetConfig::from_file(config("mv_controlnet/config.json")).unwrap();
+    let stock = ControlNet::random(&c, false, 1, &device).unwrap();
+    assert_eq!(stock.num_params(), 361_279_120);
+    drop(stock);
+    let t = Instant::now();
+    let mv = ControlNet::random(&c, true, 1, &device).unwrap();
+    println!("controlnet built in {:.1} s", t.elapsed().as_secs_f64());
+    assert_eq!(mv.num_params(), 385_053_200);
+    assert_eq!(mv.named_parameters().iter().filter(|p| p.key.contains("joint_mid.")).count(), 49);
+    let t = Instant::now();
+    let residuals = mv
+        .forward(
+            Tensor::zeros([2, 4, 16, 16], &device),
+            &[500.0],
+            Tensor::zeros([2, 77, 768], &device),
+            Tensor::zeros([2, 3, 128, 128], &device),
+            1.0,
+        )
+        .unwrap();
+    println!("controlnet forward (2 × 16² latents) in {:.1} s", t.elapsed().as_secs_f64());
+    let shapes: Vec<[usize; 4]> = residuals.down.iter().map(|r| r.dims()).collect();
+    let level = |c: usize, s: usize| [2, c, s, s];
+    assert_eq!(
+        shapes,
+        [
+            level(320, 16),
+            level(320, 16),
+            level(320, 16),
+            level(320, 8),
+            level(640, 8),
+            level(640, 8),
+            level(640, 4),
+            level(1280, 4),
+            level(1280, 4),
+            level(1280, 2),
+            level(1280, 2),
+            level(1280, 2),
+        ]
+    );
+    assert_eq!(residuals.mid.dims(), [2, 1280, 2, 2]);
 }
 
 #[test]
