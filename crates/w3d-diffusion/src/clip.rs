@@ -344,7 +344,7 @@ fn resample_weights(src: usize, dst: usize) -> Vec<(usize, Vec<f64>)> {
 
 /// Bicubic resize of `[h][w][3]`, horizontal then vertical pass, each rounded and clamped to
 /// `[0, 255]` as PIL does on 8-bit images.
-fn resize_bicubic(rgb: &[f32], w: usize, h: usize, new_w: usize, new_h: usize) -> Vec<f32> {
+pub(crate) fn resize_bicubic(rgb: &[f32], w: usize, h: usize, new_w: usize, new_h: usize) -> Vec<f32> {
     let round = |v: f64| v.round().clamp(0.0, 255.0) as f32;
     let horizontal = resample_weights(w, new_w);
     let mut tmp = vec![0.0f32; h * new_w * 3];

@@ -46,6 +46,7 @@ pub mod config;
 pub mod controlnet;
 mod cpu_attention;
 pub mod device;
+pub mod enhancer;
 pub mod ip_adapter;
 pub mod multiview;
 pub mod nn;
@@ -64,9 +65,8 @@ pub use clip::{
 };
 pub use clip_text::ClipText;
 pub use config::{
-    AUTHORS_INFERENCE_UNET_KWARGS, ClipTextConfig, ClipVisionConfig, ConfigDifference, ControlNetConfig, InferenceOverride,
-    PerBlock,
-    SchedulerConfig, UNetConfig, VaeConfig,
+    AUTHORS_INFERENCE_UNET_KWARGS, ClipTextConfig, ClipVisionConfig, ConfigDifference, ControlNetConfig,
+    InferenceOverride, PerBlock, SchedulerConfig, UNetConfig, VaeConfig,
 };
 pub use controlnet::{ControlNet, ControlResiduals};
 #[cfg(feature = "wgpu")]

@@ -307,47 +307,50 @@ impl GeneratedViews {
     /// masks that are 0 where both images are background (every channel above
     /// [`BACKGROUND_THRESHOLD`]); normals are zero on the background.
     pub fn to_view_set(&self) -> Result<ViewSet, Error> {
-        let rig = self.camera.rig();
-        if self.normals.len() != rig.len() || self.colours.len() != rig.len() {
-            return Err(Error::invalid(
-                "views",
-                format!(
-                    "{} normal and colour images (found {}, {})",
-                    rig.len(),
-                    self.normals.len(),
-                    self.colours.len()
-                ),
-            ));
-        }
-        let mut views = Vec::with_capacity(rig.len());
-        for ((normal_rgb, colour), view) in self.normals.iter().zip(&self.colours).zip(&rig.views) {
-            let (w, h) = (normal_rgb.width(), normal_rgb.height());
-            colour.expect_shape("colour", w, h, 3)?;
-            normal_rgb.expect_shape("normal", w, h, 3)?;
-            let mut normal = Vec::with_capacity((w * h * 3) as usize);
-            let mut mask = Vec::with_capacity((w * h) as usize);
-            for (n, c) in normal_rgb.data().chunks_exact(3).zip(colour.data().chunks_exact(3)) {
-                let white = |p: &[f32]| p.iter().all(|&v| v > BACKGROUND_THRESHOLD);
-                let v = [2.0 * n[0] - 1.0, 2.0 * n[1] - 1.0, 2.0 * n[2] - 1.0];
-                let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                if (white(n) && white(c)) || len < 1e-6 {
-                    normal.extend([0.0; 3]);
-                    mask.push(0.0);
-                } else {
-                    normal.extend(v.map(|x| x / len));
-                    mask.push(1.0);
-                }
-            }
-            views.push(ViewImages {
-                name: view.name.clone(),
-                normal: Image::new(w, h, 3, normal)?,
-                colour: Some(colour.clone()),
-                mask: Image::new(w, h, 1, mask)?,
-                depth: None,
-            });
-        }
-        ViewSet::new(rig, views)
+        views_from_images(self.camera.rig(), &self.normals, &self.colours)
     }
+}
+
+/// A [`ViewSet`] of `rig` from normal maps as the diffusion models draw them (RGB =
+/// (n + 1) / 2, white background) and colour images (white background), one of each per
+/// view in rig order: normals decoded to unit vectors (`2·rgb − 1`, normalised), colours as
+/// given, and masks that are 0 where both images are background (every channel above
+/// [`BACKGROUND_THRESHOLD`]); normals are zero on the background.
+pub fn views_from_images(rig: ViewRig, normals: &[Image], colours: &[Image]) -> Result<ViewSet, Error> {
+    if normals.len() != rig.len() || colours.len() != rig.len() {
+        return Err(Error::invalid(
+            "views",
+            format!("{} normal and colour images (found {}, {})", rig.len(), normals.len(), colours.len()),
+        ));
+    }
+    let mut views = Vec::with_capacity(rig.len());
+    for ((normal_rgb, colour), view) in normals.iter().zip(colours).zip(&rig.views) {
+        let (w, h) = (normal_rgb.width(), normal_rgb.height());
+        colour.expect_shape("colour", w, h, 3)?;
+        normal_rgb.expect_shape("normal", w, h, 3)?;
+        let mut normal = Vec::with_capacity((w * h * 3) as usize);
+        let mut mask = Vec::with_capacity((w * h) as usize);
+        for (n, c) in normal_rgb.data().chunks_exact(3).zip(colour.data().chunks_exact(3)) {
+            let white = |p: &[f32]| p.iter().all(|&v| v > BACKGROUND_THRESHOLD);
+            let v = [2.0 * n[0] - 1.0, 2.0 * n[1] - 1.0, 2.0 * n[2] - 1.0];
+            let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+            if (white(n) && white(c)) || len < 1e-6 {
+                normal.extend([0.0; 3]);
+                mask.push(0.0);
+            } else {
+                normal.extend(v.map(|x| x / len));
+                mask.push(1.0);
+            }
+        }
+        views.push(ViewImages {
+            name: view.name.clone(),
+            normal: Image::new(w, h, 3, normal)?,
+            colour: Some(colour.clone()),
+            mask: Image::new(w, h, 1, mask)?,
+            depth: None,
+        });
+    }
+    ViewSet::new(rig, views)
 }
 
 /// The Wonder3D++ multi-view diffusion pipeline: the multi-view cross-domain UNet, the VAE,

@@ -12,6 +12,8 @@ mod clip_text;
 mod common;
 #[path = "parity_cases/controlnet.rs"]
 mod controlnet;
+#[path = "parity_cases/enhancer.rs"]
+mod enhancer;
 // The conv tests share this test binary (one link instead of two).
 #[path = "parity_cases/conv.rs"]
 mod conv;

@@ -1,11 +1,13 @@
-//! `wonder3d refine MESH VIEWS --enhancer identity|oracle:MESH --out X.glb`: the refinement
+//! `wonder3d refine MESH VIEWS --enhancer DIR|identity|oracle:MESH --out X.glb`: the refinement
 //! loop (enhance four views at `--size` → refine the mesh → refine the texture), after
 //! `wonder3d reconstruct`.
 
 use std::path::PathBuf;
 
 use wonder3d::core::io::write_atomic;
-use wonder3d::refine::{Enhancer, IdentityEnhancer, OracleEnhancer, RefineOptions, RefineProgress, RefineStep, refine};
+use wonder3d::refine::{
+    DiffusionEnhancer, Enhancer, IdentityEnhancer, OracleEnhancer, RefineOptions, RefineProgress, RefineStep, refine,
+};
 use wonder3d::{Error, Result, TextureOptions, ViewSet, check_outputs, load_mesh, save_mesh};
 
 use crate::progress;
@@ -17,19 +19,19 @@ pub enum EnhancerArg {
     Identity,
     /// Renders of a known mesh (the best any enhancer could do).
     Oracle(PathBuf),
+    /// The diffusion enhancer, loaded from a model directory (`docs/weights.md`, "The enhancer").
+    Diffusion(PathBuf),
 }
 
-/// Parses `--enhancer`: `identity` or `oracle:MESH`.
+/// Parses `--enhancer`: `identity`, `oracle:MESH` or the directory of a diffusion enhancer.
 pub fn enhancer(s: &str) -> std::result::Result<EnhancerArg, String> {
     match s {
         "identity" => Ok(EnhancerArg::Identity),
+        "" => Err("identity, oracle:MESH or an enhancer model directory (found an empty value)".into()),
         _ => match s.strip_prefix("oracle:") {
             Some("") => Err("oracle:MESH needs a mesh file after the colon".into()),
             Some(mesh) => Ok(EnhancerArg::Oracle(PathBuf::from(mesh))),
-            None => Err(format!(
-                "identity or oracle:MESH (found {s:?}; the diffusion enhancer, which would read a model \
-                 directory, is not part of this version: see the refinement section of docs/architecture.md)"
-            )),
+            None => Ok(EnhancerArg::Diffusion(PathBuf::from(s))),
         },
     }
 }
@@ -44,9 +46,11 @@ pub struct RefineArgs {
     /// render` or `wonder3d generate` writes one); its rig must have the front, right, back and
     /// left views.
     views: PathBuf,
-    /// Enhancer: `identity` (the renders of the current mesh, unchanged) or `oracle:MESH`
-    /// (renders of MESH, oriented outward and normalised into the unit cube as `wonder3d
-    /// render` does; `--no-normalize` keeps its coordinates).
+    /// Enhancer: a model directory (the diffusion enhancer: Stable Diffusion 1.5 + Wonder3D++'s
+    /// ControlNet + IP-Adapter, layout in docs/weights.md, "The enhancer"), `identity` (the
+    /// renders of the current mesh, unchanged) or `oracle:MESH` (renders of MESH, oriented
+    /// outward and normalised into the unit cube as `wonder3d render` does; `--no-normalize`
+    /// keeps its coordinates).
     #[arg(long, value_parser = enhancer)]
     enhancer: EnhancerArg,
     /// Output file: `.glb` (embedded texture), `.obj` (+ `.mtl` + `.png`) or `.ply`.
@@ -92,6 +96,7 @@ pub fn run(args: &RefineArgs) -> Result<()> {
             }
             Box::new(OracleEnhancer::new(truth))
         }
+        EnhancerArg::Diffusion(dir) => Box::new(DiffusionEnhancer::load(dir)?),
     };
     let views = ViewSet::load(&args.views)?;
     let bar = progress::bar(args.quiet)?;

@@ -109,6 +109,135 @@ impl Enhancer for OracleEnhancer {
     }
 }
 
+/// The diffusion enhancer: Wonder3D++'s ControlNet + IP-Adapter img2img call on Stable
+/// Diffusion 1.5 ([`w3d_diffusion::enhancer`]), colour and normal grids of the four views in
+/// one joint call, with the authors' settings per iteration
+/// ([`EnhancerOptions::for_iteration`](w3d_diffusion::enhancer::EnhancerOptions::for_iteration)).
+///
+/// As in the authors' code, the init and control images are the views the mesh was
+/// reconstructed from ([`EnhanceRequest::views`], brought to the refinement size with PIL's
+/// bicubic filter), in every iteration; [`DiffusionEnhancer::with_init_from_renders`] uses the
+/// renders of the current mesh instead (the paper's description). The IP-Adapter sees the
+/// front colour view unless [`DiffusionEnhancer::with_input_image`] gives the input photo.
+/// The enhanced normals are decoded as world normals, and the masks keep every pixel that is
+/// not white in both the colour and the normal tile.
+#[derive(Debug)]
+pub struct DiffusionEnhancer {
+    pipeline: w3d_diffusion::enhancer::EnhancerPipeline,
+    device: w3d_diffusion::Device,
+    input_image: Option<w3d_core::Image>,
+    init_from_renders: bool,
+    upstream_cfg_bugs: bool,
+}
+
+impl DiffusionEnhancer {
+    /// Loads an enhancer directory (`docs/weights.md`, "The enhancer") on the default CPU
+    /// device.
+    pub fn load(dir: impl AsRef<std::path::Path>) -> Result<Self> {
+        Self::load_on(dir, w3d_diffusion::default_device())
+    }
+
+    /// Loads an enhancer directory onto `device`, weights in their stored precision.
+    pub fn load_on(dir: impl AsRef<std::path::Path>, device: w3d_diffusion::Device) -> Result<Self> {
+        let pipeline = w3d_diffusion::enhancer::EnhancerPipeline::from_dir_with(
+            dir,
+            &device,
+            w3d_diffusion::WeightStorage::AsStored,
+        )?;
+        Ok(Self::new(pipeline, device))
+    }
+
+    /// An enhancer over loaded models.
+    pub fn new(pipeline: w3d_diffusion::enhancer::EnhancerPipeline, device: w3d_diffusion::Device) -> Self {
+        DiffusionEnhancer { pipeline, device, input_image: None, init_from_renders: false, upstream_cfg_bugs: false }
+    }
+
+    /// This enhancer with the IP-Adapter image set to `image` (the input photo, RGB or RGBA).
+    #[must_use]
+    pub fn with_input_image(mut self, image: w3d_core::Image) -> Self {
+        self.input_image = Some(image);
+        self
+    }
+
+    /// This enhancer with the init and control images taken from the renders of the current
+    /// mesh (`true`) or from the original views (`false`, the authors' code and the default).
+    #[must_use]
+    pub fn with_init_from_renders(mut self, value: bool) -> Self {
+        self.init_from_renders = value;
+        self
+    }
+
+    /// This enhancer reproducing the batch-order bugs of the authors' pipeline (for
+    /// comparisons with their outputs; off by default).
+    #[must_use]
+    pub fn with_upstream_cfg_bugs(mut self, value: bool) -> Self {
+        self.upstream_cfg_bugs = value;
+        self
+    }
+}
+
+/// The tiles of the refinement views of `views` at `size²`: colours and normal maps
+/// ((n + 1) / 2) over white.
+fn enhancer_tiles(views: &ViewSet, rig: &ViewRig, size: u32) -> Result<(Vec<w3d_core::Image>, Vec<w3d_core::Image>)> {
+    let mut colours = Vec::with_capacity(rig.len());
+    let mut normals = Vec::with_capacity(rig.len());
+    for view in &rig.views {
+        let (_, images) = views
+            .iter()
+            .find(|(v, _)| v.name == view.name)
+            .ok_or_else(|| Error::invalid("views", format!("a view named {}", view.name)))?;
+        let colour = images
+            .colour
+            .as_ref()
+            .ok_or_else(|| Error::invalid("views", format!("a colour image for view {}", view.name)))?;
+        let mask = images.mask.data();
+        let over_white = |rgb: &[f32], encode: fn(f32) -> f32| -> Vec<f32> {
+            rgb.chunks_exact(3)
+                .zip(mask)
+                .flat_map(|(p, &a)| {
+                    let a = a.clamp(0.0, 1.0);
+                    [encode(p[0]) * a + 1.0 - a, encode(p[1]) * a + 1.0 - a, encode(p[2]) * a + 1.0 - a]
+                })
+                .collect()
+        };
+        let (w, h) = (images.normal.width(), images.normal.height());
+        let colour = w3d_core::Image::new(w, h, 3, over_white(colour.data(), |v| v))?;
+        let normal = w3d_core::Image::new(w, h, 3, over_white(images.normal.data(), |v| 0.5 * v + 0.5))?;
+        colours.push(w3d_diffusion::enhancer::resize_bicubic(&colour, size, size)?);
+        normals.push(w3d_diffusion::enhancer::resize_bicubic(&normal, size, size)?);
+    }
+    Ok((colours, normals))
+}
+
+impl Enhancer for DiffusionEnhancer {
+    fn name(&self) -> String {
+        "diffusion".into()
+    }
+
+    fn enhance(&self, request: &EnhanceRequest<'_>) -> Result<ViewSet> {
+        use w3d_diffusion::enhancer::{EnhancerOptions, images_to_tensor, make_grid, split_grid, tensor_to_images};
+        let rig = request.renders.rig().clone();
+        let size = request.renders.width();
+        let source = if self.init_from_renders { request.renders } else { request.views };
+        let (colours, normals) = enhancer_tiles(source, &rig, size)?;
+        let (colour_grid, normal_grid) = (make_grid(&colours)?, make_grid(&normals)?);
+        let grids = images_to_tensor(&[&colour_grid, &normal_grid], &self.device)?;
+        let options = EnhancerOptions::for_iteration(request.iteration).with_upstream_cfg_bugs(self.upstream_cfg_bugs);
+        let ip_image = match &self.input_image {
+            Some(image) => image.clone(),
+            None => colours[0].clone(),
+        };
+        let tokens = self.pipeline.image_tokens(&ip_image, &options, &self.device)?;
+        let enhanced = self.pipeline.enhance_grids(grids, &tokens, &options, &mut |_, _| {})?;
+        let mut grids = tensor_to_images(enhanced)?.into_iter();
+        let (colour_grid, normal_grid) = match (grids.next(), grids.next()) {
+            (Some(c), Some(n)) => (c, n),
+            _ => return Err(Error::invalid("enhanced grids", "a colour and a normal grid")),
+        };
+        w3d_diffusion::multiview::views_from_images(rig, &split_grid(&normal_grid)?, &split_grid(&colour_grid)?)
+    }
+}
+
 /// Options of [`refine`].
 #[derive(Debug, Clone, PartialEq)]
 #[non_exhaustive]

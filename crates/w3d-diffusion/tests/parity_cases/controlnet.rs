@@ -84,7 +84,13 @@ fn stock_controlnet_matches_diffusers_on_an_odd_batch() {
         let mut io = SafetensorsFile::open(fixture("controlnet/io.safetensors")).unwrap();
         let x = inputs(&mut io, &device);
         let residuals = controlnet
-            .forward(x.latents.slice([0..3]), &x.timesteps[..3], x.context.slice([0..3]), x.control.slice([0..3]), 0.7)
+            .forward(
+                x.latents.narrow(0, 0, 3),
+                &x.timesteps[..3],
+                x.context.narrow(0, 0, 3),
+                x.control.narrow(0, 0, 3),
+                0.7,
+            )
             .unwrap();
         let err = residual_error(&residuals, &mut io, "stock.", &device);
         println!("{name}: stock controlnet residuals max-abs error {err:.2e}");
@@ -104,10 +110,10 @@ fn controlnet_and_injection_refuse_bad_inputs() {
     // An odd batch cannot be split into the two domains' halves.
     let e = controlnet
         .forward(
-            x.latents.clone().slice([0..3]),
+            x.latents.clone().narrow(0, 0, 3),
             &[500.0],
-            x.context.clone().slice([0..3]),
-            x.control.clone().slice([0..3]),
+            x.context.clone().narrow(0, 0, 3),
+            x.control.clone().narrow(0, 0, 3),
             1.0,
         )
         .unwrap_err();
@@ -152,8 +158,8 @@ fn controlnet_and_injection_refuse_bad_inputs() {
     assert!(message(run(mid).unwrap_err()).contains("control.mid"));
     // Residuals of another batch size.
     let half = ControlResiduals {
-        down: residuals.down.iter().map(|r| r.clone().slice([0..2])).collect(),
-        mid: residuals.mid.clone().slice([0..2]),
+        down: residuals.down.iter().map(|r| r.clone().narrow(0, 0, 2)).collect(),
+        mid: residuals.mid.clone().narrow(0, 0, 2),
     };
     assert!(message(run(half).unwrap_err()).contains("control.down[0]"));
     assert!(run(residuals).is_ok());

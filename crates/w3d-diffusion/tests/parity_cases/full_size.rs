@@ -1,6 +1,7 @@
 //! The real-size Wonder3D base configs parse; the real-size models instantiate and run one
 //! forward within 8 GiB peak memory, the real-size ControlNet has the published parameter
-//! count, and one guided denoising step of the real-size
+//! count, one guided step of the real-size enhancer (SD1.5 UNet + ControlNet at 128² latents,
+//! `real_size_enhancer_step`), and one guided denoising step of the real-size
 //! multi-view UNet (12 images at 32×32 latents, 24 UNet images with guidance) is timed with its
 //! peak memory on each test backend, with f32 and with f16 weight storage (`W3D_STEP_WEIGHTS=f32` or
 //! `f16` for one of them; ignored by default: slow; run with
@@ -19,6 +20,10 @@ use crate::common::test_devices;
 
 fn config(path: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs").join("wonder3d").join(path)
+}
+
+fn enhancer_config(path: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("configs").join("enhancer").join(path)
 }
 
 /// Peak resident memory of this process in bytes (`VmHWM`).
@@ -41,7 +46,7 @@ fn real_configs_parse() {
     let scheduler = SchedulerConfig::from_file(config("scheduler/scheduler_config.json")).unwrap();
     assert_eq!(scheduler, SchedulerConfig::stable_diffusion());
     assert_eq!(DdimScheduler::new(scheduler, 50).unwrap().timesteps()[0], 981);
-    let controlnet = ControlNetConfig::from_file(config("mv_controlnet/config.json")).unwrap();
+    let controlnet = ControlNetConfig::from_file(enhancer_config("controlnet/config.json")).unwrap();
     assert_eq!((controlnet.unet.heads(2).unwrap(), controlnet.control_downscale()), (8, 8));
 }
 
@@ -52,7 +57,7 @@ fn real_configs_parse() {
 #[ignore = "slow: real-size ControlNet (~1.5 GB of weights)"]
 fn real_size_controlnet_has_the_published_parameter_count() {
     let device = w3d_diffusion::default_device();
-    let c = ControlNetConfig::from_file(config("mv_controlnet/config.json")).unwrap();
+    let c = ControlNetConfig::from_file(enhancer_config("controlnet/config.json")).unwrap();
     let stock = ControlNet::random(&c, false, 1, &device).unwrap();
     assert_eq!(stock.num_params(), 361_279_120);
     drop(stock);
@@ -192,4 +197,53 @@ fn real_size_multiview_guided_step() {
             gib(peak_rss())
         );
     }
+}
+
+/// One guided denoising step of the refinement enhancer at real size: the SD1.5 UNet (f16
+/// weights) and Wonder3D++'s ControlNet with cross-domain attention on the 4 guidance rows
+/// of a 1024² grid pair (128² latents), 77 text tokens, then guidance and a UniPC step — the
+/// cost of one of the 10 (first iteration) or 5 (later ones) steps of an enhancer call. The
+/// IP-Adapter's image attention (4 tokens per cross-attention) is left out: it adds a few
+/// thousandths of the step's arithmetic. Timed, with peak memory.
+#[test]
+#[ignore = "slow: real-size enhancer (SD1.5 UNet + ControlNet, ~1.2 G parameters), one guided step at 128² latents"]
+fn real_size_enhancer_step() {
+    use w3d_diffusion::{UNetExtra, UniPcMultistepScheduler, classifier_free_guidance};
+    let gib = |b: u64| b as f64 / (1u64 << 30) as f64;
+    let device = w3d_diffusion::default_device();
+    let t = Instant::now();
+    let unet_config = UNetConfig::from_file(enhancer_config("unet/config.json")).unwrap();
+    let unet = UNet::random_with(&unet_config, 1, &device, WeightStorage::F16).unwrap();
+    let control_config = ControlNetConfig::from_file(enhancer_config("controlnet/config.json")).unwrap();
+    let controlnet = ControlNet::random(&control_config, true, 2, &device).unwrap();
+    println!(
+        "SD1.5 UNet {:.1} M + ControlNet {:.1} M parameters, built in {:.1} s",
+        unet.num_params() as f64 / 1e6,
+        controlnet.num_params() as f64 / 1e6,
+        t.elapsed().as_secs_f64()
+    );
+    let latents: Tensor<4> = gaussian_noise([2, 4, 128, 128], 3, &device);
+    let control: Tensor<4> = gaussian_noise([4, 3, 1024, 1024], 4, &device).clamp(0.0, 1.0);
+    let context: Tensor<3> = gaussian_noise([4, 77, 768], 5, &device);
+    let mut scheduler = UniPcMultistepScheduler::new(UniPcMultistepScheduler::stable_diffusion_config(), 50).unwrap();
+    scheduler.set_begin_index(40).unwrap();
+    let timestep = scheduler.run_timesteps()[0];
+    reset_peak_rss();
+    let rss_models = peak_rss();
+    let t = Instant::now();
+    let rows = Tensor::cat(vec![latents.clone(), latents.clone()], 0);
+    let residuals = controlnet.forward(rows.clone(), &[timestep as f32], context.clone(), control, 0.7).unwrap();
+    let t_control = t.elapsed().as_secs_f64();
+    let extra = UNetExtra { control: Some(residuals), ip: None };
+    let out = unet.forward_with(rows, &[timestep as f32], context, None, &extra).unwrap();
+    let eps = classifier_free_guidance(out.clone().narrow(0, 0, 2), out.narrow(0, 2, 2), 3.0);
+    let next = scheduler.step(eps, timestep, latents).unwrap();
+    let values = next.into_data().try_to_vec::<f32>().unwrap();
+    let seconds = t.elapsed().as_secs_f64();
+    assert!(values.iter().all(|v| v.is_finite()));
+    println!(
+        "one enhancer step (ControlNet {t_control:.1} s + UNet, 4 rows at 128²): {seconds:.1} s; RSS with the models {:.2} GiB, peak during the step {:.2} GiB",
+        gib(rss_models),
+        gib(peak_rss())
+    );
 }

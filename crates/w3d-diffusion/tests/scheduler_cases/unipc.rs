@@ -181,7 +181,8 @@ fn unipc_bad_input_is_refused() {
     let second = scheduler.timesteps()[1];
     let err = scheduler.step(other.clone(), second, other).unwrap_err().to_string();
     assert!(err.contains("previous steps"), "{err}");
-    for t in scheduler.timesteps()[1..].to_vec() {
+    let rest: Vec<usize> = scheduler.timesteps()[1..].into();
+    for t in rest {
         scheduler.step(x.clone(), t, x.clone()).unwrap();
     }
     let err = scheduler.step(x.clone(), 1, x.clone()).unwrap_err().to_string();

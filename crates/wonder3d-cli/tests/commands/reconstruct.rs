@@ -144,11 +144,20 @@ fn refine_names_what_is_wrong_before_any_work() {
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     let out = dir.path().join("x.glb");
     let (v, o) = (views.to_str().unwrap(), out.to_str().unwrap());
-    // An enhancer that is not one of the two: clap's usage error, naming what is accepted.
-    let run = wonder3d(&["refine", &spot(), v, "--enhancer", "controlnet", "--out", o]);
-    assert_eq!(run.status.code(), Some(2));
+    // An enhancer directory that does not exist, and one missing a file: the missing file is
+    // named with the docs section on the layout, before any weight is read.
+    let run = wonder3d(&["refine", &spot(), v, "--enhancer", "no-such-enhancer", "--out", o]);
+    assert_eq!(run.status.code(), Some(1));
     let err = String::from_utf8_lossy(&run.stderr);
-    assert!(err.contains("identity or oracle:MESH") && err.contains("docs/architecture.md"), "{err}");
+    assert!(err.contains("no-such-enhancer") && err.contains("docs/weights.md"), "{err}");
+    let partial = dir.path().join("enhancer");
+    std::fs::create_dir_all(partial.join("unet")).unwrap();
+    std::fs::write(partial.join("unet").join("config.json"), "{}").unwrap();
+    let run = wonder3d(&["refine", &spot(), v, "--enhancer", partial.to_str().unwrap(), "--out", o]);
+    assert_eq!(run.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("diffusion_pytorch_model.safetensors") && err.contains("docs/weights.md"), "{err}");
+    assert!(!out.exists());
     let run = wonder3d(&["refine", &spot(), v, "--enhancer", "oracle:", "--out", o]);
     assert_eq!(run.status.code(), Some(2));
     let run = wonder3d(&["refine", &spot(), v, "--enhancer", "identity", "--iterations", "11", "--out", o]);

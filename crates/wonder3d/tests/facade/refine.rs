@@ -92,3 +92,27 @@ fn no_iterations_keep_the_mesh_and_a_wrong_enhancer_is_named() {
     let err = refine(&geometry, &three, &IdentityEnhancer, &options(), &mut |_| {}).unwrap_err().to_string();
     assert!(err.contains("refinement views") && err.contains("\"right\""), "{err}");
 }
+
+/// The diffusion enhancer in the loop, on the tiny random-weight enhancer of w3d-diffusion's
+/// parity fixtures (its views are noise, so this checks the wiring and that the loop stays
+/// closed and intersection-free whatever an enhancer returns; the arithmetic is checked
+/// against diffusers in `w3d-diffusion`'s `parity::enhancer`).
+#[test]
+fn the_diffusion_enhancer_runs_in_the_loop() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../w3d-diffusion/tests/fixtures/enhancer");
+    let enhancer = wonder3d::refine::DiffusionEnhancer::load(&dir).unwrap();
+    let spot = wonder3d::demo::bundled_spot().unwrap();
+    let views = wonder3d::raster::render_oracle_views(&spot, &ViewRig::wonder3d_ortho(), 64).unwrap();
+    let coarse =
+        Pipeline::new().with_preset(wonder3d::Preset::Fast).without_texture().from_views(&views, &mut |_| {}).unwrap();
+    let options = RefineOptions::default()
+        .with_iterations(2)
+        .with_size(32)
+        .with_mesh(MeshRefineOptions::default().with_steps(10).with_edge_len_lims((0.03, 0.05)))
+        .with_texture(wonder3d::TextureOptions::default().with_size(512));
+    let refined = refine(&coarse.geometry, &views, &enhancer, &options, &mut |_| {}).unwrap();
+    assert_eq!(refined.report.enhancer, "diffusion");
+    assert_eq!(refined.report.iterations.len(), 2);
+    assert!(refined.geometry.topology().is_watertight() && refined.geometry.self_intersections().is_empty());
+    assert!(refined.mesh.texture().is_some());
+}
