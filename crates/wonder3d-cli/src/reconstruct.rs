@@ -1,4 +1,5 @@
-//! `wonder3d reconstruct VIEWS_DIR --out mesh.glb [--preset …] [--report report.json]`.
+//! `wonder3d reconstruct VIEWS_DIR --out mesh.glb [--preset …] [--report report.json]
+//! [--enhancer DIR [--refine N]]`.
 
 use std::path::PathBuf;
 
@@ -23,14 +24,24 @@ pub struct ReconstructArgs {
     /// Also write the reconstruction report (stage timings, losses, face counts, init choice) as JSON.
     #[arg(long)]
     report: Option<PathBuf>,
+    #[command(flatten)]
+    refinement: crate::refine::RefineAfterArgs,
+    /// Texture width and height in texels of the refined mesh (with --enhancer; the coarse
+    /// mesh is written untextured).
+    #[arg(long, default_value_t = wonder3d::TextureOptions::default().size, allow_hyphen_values = true, value_parser = crate::args::texture_size)]
+    texture_size: u32,
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
 }
 
-/// Runs `wonder3d reconstruct`: the closed mesh, untextured.
+/// Runs `wonder3d reconstruct`: the closed mesh, untextured (refined and textured with
+/// `--enhancer`).
 pub fn run(args: &ReconstructArgs) -> Result<()> {
     check_outputs(&args.out, args.report.as_deref(), None)?;
+    let texture = wonder3d::TextureOptions::default().with_size(args.texture_size);
+    texture.validate()?;
+    let iterations = args.refinement.check()?;
     let views = ViewSet::load(&args.views)?;
     let bar = progress::bar(args.quiet)?;
     let output = Pipeline::new()
@@ -38,7 +49,19 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
         .without_texture()
         .from_views(&views, &mut progress::follow(&bar))?;
     bar.finish_and_clear();
-    output.save(&args.out)?;
+    match args.refinement.refine(&output.geometry, &views, None, iterations, texture, args.quiet)? {
+        Some(refined) => {
+            wonder3d::save_mesh(&args.out, &refined.mesh)?;
+            println!(
+                "refined with the {} enhancer: {} iteration(s), {} triangles in {:.1} s",
+                refined.report.enhancer,
+                refined.report.iterations.len(),
+                refined.report.triangles,
+                refined.report.seconds
+            );
+        }
+        None => output.save(&args.out)?,
+    }
     if let Some(path) = &args.report {
         let json = serde_json::to_vec_pretty(&output.report.reconstruction)
             .map_err(|e| Error::invalid("report", e.to_string()))?;

@@ -6,9 +6,9 @@ use std::path::PathBuf;
 
 use wonder3d::core::io::write_atomic;
 use wonder3d::refine::{
-    DiffusionEnhancer, Enhancer, IdentityEnhancer, OracleEnhancer, RefineOptions, RefineProgress, RefineStep, refine,
+    Enhancer, IdentityEnhancer, OracleEnhancer, RefineOptions, RefineProgress, RefineStep, Refined, refine,
 };
-use wonder3d::{Error, Result, TextureOptions, ViewSet, check_outputs, load_mesh, save_mesh};
+use wonder3d::{Error, Mesh, Result, TextureOptions, ViewSet, check_outputs, load_mesh, save_mesh};
 
 use crate::progress;
 
@@ -96,11 +96,37 @@ pub fn run(args: &RefineArgs) -> Result<()> {
             }
             Box::new(OracleEnhancer::new(truth))
         }
-        EnhancerArg::Diffusion(dir) => Box::new(DiffusionEnhancer::load(dir)?),
+        EnhancerArg::Diffusion(dir) => diffusion_enhancer(dir, None)?,
     };
     let views = ViewSet::load(&args.views)?;
-    let bar = progress::bar(args.quiet)?;
-    let refined = refine(&geometry, &views, enhancer.as_ref(), &options, &mut |p: RefineProgress| {
+    let refined = refine_with_bar(&geometry, &views, enhancer.as_ref(), &options, args.quiet)?;
+    save_mesh(&args.out, &refined.mesh)?;
+    if let Some(path) = &args.report {
+        let json = serde_json::to_vec_pretty(&refined.report).map_err(|e| Error::invalid("report", e.to_string()))?;
+        write_atomic(path, |w| std::io::Write::write_all(w, &json).map_err(|e| Error::io(path, e)))?;
+    }
+    let r = &refined.report;
+    println!(
+        "refined with the {} enhancer: {} iteration(s), {} triangles in {:.1} s -> {}",
+        r.enhancer,
+        r.iterations.len(),
+        r.triangles,
+        r.seconds,
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// [`refine`] with a progress bar (none with `quiet`).
+pub fn refine_with_bar(
+    geometry: &Mesh,
+    views: &ViewSet,
+    enhancer: &dyn Enhancer,
+    options: &RefineOptions,
+    quiet: bool,
+) -> Result<Refined> {
+    let bar = progress::bar(quiet)?;
+    let refined = refine(geometry, views, enhancer, options, &mut |p: RefineProgress| {
         bar.set_prefix(format!("refine {}/{}", p.iteration + 1, p.iterations));
         match p.step {
             RefineStep::Enhancing => {
@@ -117,19 +143,90 @@ pub fn run(args: &RefineArgs) -> Result<()> {
         }
     })?;
     bar.finish_and_clear();
-    save_mesh(&args.out, &refined.mesh)?;
-    if let Some(path) = &args.report {
-        let json = serde_json::to_vec_pretty(&refined.report).map_err(|e| Error::invalid("report", e.to_string()))?;
-        write_atomic(path, |w| std::io::Write::write_all(w, &json).map_err(|e| Error::io(path, e)))?;
+    Ok(refined)
+}
+
+/// `--enhancer DIR` and `--refine N` of `wonder3d run` and `wonder3d reconstruct`: Wonder3D++'s
+/// refinement after the coarse mesh, with the diffusion enhancer.
+#[derive(clap::Args)]
+pub struct RefineAfterArgs {
+    /// Refine the mesh with the diffusion enhancer in this directory (Stable Diffusion 1.5 +
+    /// Wonder3D++'s ControlNet + IP-Adapter; docs/weights.md, "The enhancer"; docs/refinement.md).
+    #[arg(long)]
+    enhancer: Option<PathBuf>,
+    /// Refinement iterations: 2 by default with --enhancer (the authors' count), 0 without;
+    /// 0 writes the coarse mesh, as without --enhancer.
+    #[arg(long, value_parser = crate::args::refine_iterations)]
+    refine: Option<usize>,
+    /// Side of the refinement's renders and enhanced views in pixels (the reference: 512).
+    #[arg(long, default_value_t = RefineOptions::default().size, allow_hyphen_values = true, value_parser = crate::args::view_size)]
+    refine_size: u32,
+}
+
+impl RefineAfterArgs {
+    /// The iterations to run, checked before any work: more than 0 needs `--enhancer`, whose
+    /// directory must hold every file of its layout.
+    pub fn check(&self) -> Result<usize> {
+        let iterations =
+            self.refine.unwrap_or(if self.enhancer.is_some() { RefineOptions::default().iterations } else { 0 });
+        match &self.enhancer {
+            None if iterations > 0 => Err(Error::invalid(
+                "--refine",
+                format!("0 without --enhancer DIR (found {iterations}: refinement needs an enhancer)"),
+            )),
+            Some(dir) if iterations > 0 => {
+                check_enhancer_dir(dir)?;
+                Ok(iterations)
+            }
+            _ => Ok(iterations),
+        }
     }
-    let r = &refined.report;
-    println!(
-        "refined with the {} enhancer: {} iteration(s), {} triangles in {:.1} s -> {}",
-        r.enhancer,
-        r.iterations.len(),
-        r.triangles,
-        r.seconds,
-        args.out.display()
-    );
-    Ok(())
+
+    /// Refines `geometry` (reconstructed from `views`) `iterations` times at `--refine-size`,
+    /// the enhancer's IP-Adapter seeing `input` when given; `None` when `iterations` is 0.
+    pub fn refine(
+        &self,
+        geometry: &Mesh,
+        views: &ViewSet,
+        input: Option<&wonder3d::Image>,
+        iterations: usize,
+        texture: TextureOptions,
+        quiet: bool,
+    ) -> Result<Option<Refined>> {
+        let Some(dir) = self.enhancer.as_ref().filter(|_| iterations > 0) else {
+            return Ok(None);
+        };
+        let enhancer = diffusion_enhancer(dir, input)?;
+        let options =
+            RefineOptions::default().with_iterations(iterations).with_size(self.refine_size).with_texture(texture);
+        refine_with_bar(geometry, views, enhancer.as_ref(), &options, quiet).map(Some)
+    }
+}
+
+/// Fails naming the first missing file of an enhancer directory.
+#[cfg(feature = "diffusion")]
+fn check_enhancer_dir(dir: &std::path::Path) -> Result<()> {
+    wonder3d::diffusion::enhancer::check_enhancer_dir(dir)
+}
+
+/// The diffusion enhancer needs the model (this binary has none).
+#[cfg(not(feature = "diffusion"))]
+fn check_enhancer_dir(_: &std::path::Path) -> Result<()> {
+    Err(crate::generate::without_model())
+}
+
+/// The diffusion enhancer of `dir`.
+#[cfg(feature = "diffusion")]
+fn diffusion_enhancer(dir: &std::path::Path, input: Option<&wonder3d::Image>) -> Result<Box<dyn Enhancer>> {
+    let enhancer = wonder3d::refine::DiffusionEnhancer::load(dir)?;
+    Ok(Box::new(match input {
+        Some(image) => enhancer.with_input_image(image.clone()),
+        None => enhancer,
+    }))
+}
+
+/// The diffusion enhancer needs the model (this binary has none).
+#[cfg(not(feature = "diffusion"))]
+fn diffusion_enhancer(_: &std::path::Path, _: Option<&wonder3d::Image>) -> Result<Box<dyn Enhancer>> {
+    Err(crate::generate::without_model())
 }

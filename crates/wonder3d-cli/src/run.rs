@@ -1,5 +1,5 @@
-//! `wonder3d run IMAGE --weights DIR --out mesh.glb`: prepare (background removal, framing)
-//! → generate → reconstruct → texture.
+//! `wonder3d run IMAGE --weights DIR --out mesh.glb [--enhancer DIR]`: prepare (background
+//! removal, framing) → generate → reconstruct → texture (→ refine, with an enhancer).
 
 use std::path::PathBuf;
 
@@ -33,6 +33,8 @@ pub struct RunArgs {
     /// texture measurements) as JSON.
     #[arg(long)]
     report: Option<PathBuf>,
+    #[command(flatten)]
+    refinement: crate::refine::RefineAfterArgs,
     /// No progress bars.
     #[arg(long)]
     quiet: bool,
@@ -47,7 +49,9 @@ pub fn run(args: &RunArgs) -> Result<()> {
     use crate::{generate, progress};
 
     check_outputs(&args.out, args.report.as_deref(), args.views.as_deref())?;
-    TextureOptions::default().with_size(args.texture_size).validate()?;
+    let texture = TextureOptions::default().with_size(args.texture_size);
+    texture.validate()?;
+    let iterations = args.refinement.check()?;
     // Read and prepare the image before loading the weights: a refused photo fails fast.
     let prepared = wonder3d::prepare_image(&args.image, &args.model.sampling.prepare_options()?)?;
     if !args.quiet {
@@ -62,13 +66,32 @@ pub fn run(args: &RunArgs) -> Result<()> {
         .with_model(generate::load(&args.model.weights, &args.model.sampling)?);
     let output = pipeline.from_image(&rgba, &mut progress::follow(&bar))?;
     bar.finish_and_clear();
-    output.save(&args.out)?;
     if let (Some(dir), Some(input)) = (&args.views, &output.input) {
         wonder3d::Generated::new(output.views.clone(), input.clone()).save(dir)?;
     }
+    let refined =
+        args.refinement.refine(&output.geometry, &output.views, Some(&rgba), iterations, texture, args.quiet)?;
+    match &refined {
+        Some(refined) => wonder3d::save_mesh(&args.out, &refined.mesh)?,
+        None => output.save(&args.out)?,
+    }
     if let Some(path) = &args.report {
-        let json = output.report_json()?;
+        let mut report = serde_json::to_value(&output.report).map_err(|e| Error::invalid("report", e.to_string()))?;
+        if let (Some(refined), Some(object)) = (&refined, report.as_object_mut()) {
+            let value = serde_json::to_value(&refined.report).map_err(|e| Error::invalid("report", e.to_string()))?;
+            object.insert("refinement".into(), value);
+        }
+        let json = serde_json::to_string_pretty(&report).map_err(|e| Error::invalid("report", e.to_string()))?;
         write_atomic(path, |w| std::io::Write::write_all(w, json.as_bytes()).map_err(|e| Error::io(path, e)))?;
+    }
+    if let Some(refined) = &refined {
+        println!(
+            "refined with the {} enhancer: {} iteration(s), {} triangles in {:.1} s",
+            refined.report.enhancer,
+            refined.report.iterations.len(),
+            refined.report.triangles,
+            refined.report.seconds
+        );
     }
     let r = &output.report;
     println!(

@@ -121,6 +121,7 @@ impl Enhancer for OracleEnhancer {
 /// front colour view unless [`DiffusionEnhancer::with_input_image`] gives the input photo.
 /// The enhanced normals are decoded as world normals, and the masks keep every pixel that is
 /// not white in both the colour and the normal tile.
+#[cfg(feature = "diffusion")]
 #[derive(Debug)]
 pub struct DiffusionEnhancer {
     pipeline: w3d_diffusion::enhancer::EnhancerPipeline,
@@ -130,6 +131,7 @@ pub struct DiffusionEnhancer {
     upstream_cfg_bugs: bool,
 }
 
+#[cfg(feature = "diffusion")]
 impl DiffusionEnhancer {
     /// Loads an enhancer directory (`docs/weights.md`, "The enhancer") on the default CPU
     /// device.
@@ -176,6 +178,7 @@ impl DiffusionEnhancer {
     }
 }
 
+#[cfg(feature = "diffusion")]
 /// The tiles of the refinement views of `views` at `size²`: colours and normal maps
 /// ((n + 1) / 2) over white.
 fn enhancer_tiles(views: &ViewSet, rig: &ViewRig, size: u32) -> Result<(Vec<w3d_core::Image>, Vec<w3d_core::Image>)> {
@@ -209,6 +212,7 @@ fn enhancer_tiles(views: &ViewSet, rig: &ViewRig, size: u32) -> Result<(Vec<w3d_
     Ok((colours, normals))
 }
 
+#[cfg(feature = "diffusion")]
 impl Enhancer for DiffusionEnhancer {
     fn name(&self) -> String {
         "diffusion".into()

@@ -177,3 +177,58 @@ fn refine_names_what_is_wrong_before_any_work() {
     assert!(String::from_utf8_lossy(&run.stderr).contains("missing-folder"));
     assert!(!out.exists());
 }
+
+/// `reconstruct --enhancer DIR`: `--refine 0` writes exactly the coarse mesh, `--refine N`
+/// without an enhancer and an enhancer directory missing a file fail before any work, and a
+/// refinement with the tiny random-weight enhancer writes a textured mesh.
+#[test]
+fn reconstruct_refines_with_an_enhancer_and_refine_0_keeps_the_coarse_mesh() {
+    let dir = tempfile::tempdir().unwrap();
+    let views = dir.path().join("views");
+    let run = wonder3d(&["render", &spot(), "--size", "64", "--out", views.to_str().unwrap()]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let enhancer = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../w3d-diffusion/tests/fixtures/enhancer");
+    let (v, e) = (views.to_str().unwrap(), enhancer.to_str().unwrap());
+    let out = |name: &str| dir.path().join(name).to_str().unwrap().to_string();
+    let plain = out("plain.ply");
+    let run = wonder3d(&["reconstruct", v, "--out", &plain, "--preset", "fast", "--quiet"]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let zero = out("zero.ply");
+    let run =
+        wonder3d(&["reconstruct", v, "--out", &zero, "--preset", "fast", "--enhancer", e, "--refine", "0", "--quiet"]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert_eq!(std::fs::read(&plain).unwrap(), std::fs::read(&zero).unwrap(), "--refine 0 must be today's output");
+
+    let failed = out("failed.glb");
+    let run = wonder3d(&["reconstruct", v, "--out", &failed, "--refine", "1"]);
+    assert_eq!(run.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&run.stderr).contains("--enhancer"));
+    let run = wonder3d(&["reconstruct", v, "--out", &failed, "--enhancer", &out("no-such-enhancer")]);
+    assert_eq!(run.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("no-such-enhancer") && err.contains("docs/weights.md"), "{err}");
+    assert!(!std::path::Path::new(&failed).exists());
+
+    let refined = out("refined.glb");
+    let run = wonder3d(&[
+        "reconstruct",
+        v,
+        "--out",
+        &refined,
+        "--preset",
+        "fast",
+        "--enhancer",
+        e,
+        "--refine",
+        "1",
+        "--refine-size",
+        "32",
+        "--texture-size",
+        "512",
+        "--quiet",
+    ]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(String::from_utf8_lossy(&run.stdout).contains("refined with the diffusion enhancer: 1 iteration(s)"));
+    let mesh = wonder3d::load_mesh(&refined).unwrap();
+    assert!(mesh.texture().is_some());
+}
