@@ -2,7 +2,7 @@
 //! (`UNet2DConditionModel`, with the projection class embedding Wonder3D's switchers use), the
 //! `AutoencoderKL` VAE, the CLIP vision encoder with projection and its preprocessing, the CLIP
 //! text encoder ([`ClipText`]) and its BPE tokenizer ([`ClipTokenizer`]), the IP-Adapter image
-//! prompt and the ControlNet ([`controlnet`]) of Wonder3D++'s refinement enhancer
+//! prompt ([`ip_adapter`]) and the ControlNet ([`controlnet`]) of Wonder3D++'s refinement enhancer
 //! ([`enhancer`]: one joint img2img call over 2×2 grids of four views), DDIM, DPM-Solver++(2M) and UniPC sampling (UniPC
 //! also as img2img / SDEdit) with classifier-free guidance and DDIM inversion (exactly as
 //! diffusers), and
