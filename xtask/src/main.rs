@@ -10,9 +10,13 @@
 //!   the reconstruction accuracy harness (oracle views of `../shared/data/meshes`), writing
 //!   `target/bench/recon.json` and, on a full run, `docs/accuracy.md`.
 //! - `cargo xtask chart`: `docs/speed_accuracy.svg` from `target/bench/recon.json`.
-//! - `cargo xtask refine-table [--meshes a,b] [--size 512]`: the refinement loop with the
-//!   oracle and identity enhancers on noisy oracle views, `target/bench/refine.json` and the
-//!   refinement table of `docs/accuracy.md`.
+//! - `cargo xtask faces-chart [--meshes a,b] [--size 512]`: `docs/faces_accuracy.svg` and
+//!   `target/bench/faces.json`, triangles against Chamfer distance of the refinement's adaptive
+//!   mesh and of uniform-edge-length meshes fitted the same way.
+//! - `cargo xtask refine-table [--meshes a,b] [--all] [--size 512]`: the refinement loop with
+//!   the oracle and identity enhancers on noisy oracle views, `target/bench/refine.json` and the
+//!   refinement table of `docs/accuracy.md`; `--all`: the NaN / crossing sweep over every
+//!   closed mesh, the teapot and the teacups (`target/bench/refine_all_<size>.json`).
 //! - `cargo xtask build-parity`: fails if a dependency of the README's demo build would be
 //!   compiled again, with other features, by the test command.
 //! - `cargo xtask package [--verify]`: `cargo package` of every publishable crate in
@@ -57,6 +61,7 @@ use clap::{Parser, Subcommand};
 
 mod chart;
 mod eval_small;
+mod faces_chart;
 mod gpu;
 mod recon;
 mod refine_table;
@@ -147,9 +152,18 @@ enum Task {
     /// The refinement loop with the oracle and identity enhancers on noisy 128² oracle views
     /// (five objects, both rigs): target/bench/refine.json and the table of docs/accuracy.md.
     RefineTable {
-        /// Only these objects (comma-separated: spot, armadillo, koala, horse, plane).
+        /// Only these objects (comma-separated: spot, armadillo, koala, horse, plane; with
+        /// `--all`, file stems of the sweep's meshes).
         #[arg(long)]
         meshes: Option<String>,
+        /// The robustness sweep: every closed mesh, the teapot and the teacups, both rigs,
+        /// oracle 2 iterations and identity 1, checked for NaN, crossings and watertightness
+        /// (target/bench/refine_all_<size>.json).
+        #[arg(long)]
+        all: bool,
+        /// With `--all`: only this rig (`ortho` or `persp`).
+        #[arg(long)]
+        rig: Option<String>,
         /// Side of the enhanced views in pixels.
         #[arg(long, default_value_t = 512)]
         size: u32,
@@ -167,6 +181,17 @@ enum Task {
     },
     /// Draw the SVG charts in docs/ (speed against accuracy) from target/bench/*.json.
     Chart,
+    /// Triangles against Chamfer distance of the adaptive refined mesh and of uniform-edge
+    /// meshes fitted the same way (five objects, oracle enhancer): target/bench/faces.json
+    /// and docs/faces_accuracy.svg.
+    FacesChart {
+        /// Only these objects (comma-separated: spot, armadillo, koala, horse, plane).
+        #[arg(long)]
+        meshes: Option<String>,
+        /// Side of the enhanced views in pixels.
+        #[arg(long, default_value_t = 512)]
+        size: u32,
+    },
     /// Check that every dependency the README's demo command compiles is compiled with the
     /// same features by the test command (so the tests reuse it instead of rebuilding it).
     BuildParity,
@@ -671,6 +696,7 @@ fn main() -> ExitCode {
         Task::Deny => deny(),
         Task::GpuCheck => gpu::check(),
         Task::Chart => chart::run(),
+        Task::FacesChart { meshes, size } => faces_chart::run(meshes.as_deref(), size),
         Task::Package { verify } => package(verify),
         Task::BuildParity => build_parity(),
         Task::ValidateGlb { files } => validate_glb(&files),
@@ -683,7 +709,9 @@ fn main() -> ExitCode {
         }
         Task::ShipSmall { model } => train_small::ship(&model),
         Task::Bench { suite, criterion_args } => bench(&suite, &criterion_args),
-        Task::RefineTable { meshes, size, laplacian, lr } => refine_table::run(meshes.as_deref(), size, laplacian, lr),
+        Task::RefineTable { meshes, all, rig, size, laplacian, lr } => {
+            refine_table::run(meshes.as_deref(), all, rig.as_deref(), size, laplacian, lr)
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -21,7 +21,7 @@ use wonder3d::recon::{Preset, ReconOptions, reconstruct};
 use wonder3d::{Mesh, ViewRig, ViewSet, load_mesh};
 
 /// The 14 closed meshes of `../shared/data/meshes` (the ones volume IoU is defined for).
-const CLOSED: &[&str] = &[
+pub(crate) const CLOSED: &[&str] = &[
     "spot.obj",
     "bob_tri.obj",
     "armadillo.obj",
@@ -37,6 +37,10 @@ const CLOSED: &[&str] = &[
     "koala_low_resolution.obj",
     "horse.ply",
 ];
+
+/// The open, concave meshes (teacup, teapot; the teacup also turned so that its opening
+/// faces the front camera): `(file, turned)`, loaded by [`load_concave`].
+pub(crate) const CONCAVE: &[(&str, bool)] = &[("teacup.obj", false), ("teapot.obj", false), ("teacup.obj", true)];
 
 /// The cases of a full run (`--cases` picks some).
 const ALL_CASES: &[&str] = &["ortho", "persp", "presets", "concave", "stability", "robustness"];
@@ -60,6 +64,18 @@ pub(crate) fn load_normalised(dir: &Path, file: &str) -> Result<Mesh, String> {
         mesh.flip_winding(); // horse.ply is wound inwards; oracle normals must face out
     }
     Ok(mesh)
+}
+
+/// One of [`CONCAVE`]: its table name and the mesh, normalised and, when `turned`, rotated
+/// −90° about x (+y → +z) so that the opening faces the front camera.
+pub(crate) fn load_concave(dir: &Path, file: &str, turned: bool) -> Result<(String, Mesh), String> {
+    let mut truth = load_normalised(dir, file)?;
+    let mut name = file.split('.').next().unwrap_or(file).to_string();
+    if turned {
+        truth.map_positions(|p| glam::Vec3::new(p.x, -p.z, p.y)).map_err(|e| e.to_string())?;
+        name.push_str(" (opening to front)");
+    }
+    Ok((name, truth))
 }
 
 /// Reconstructs `views` and scores the result against `truth`.
@@ -300,17 +316,11 @@ pub fn run(args: &[String]) -> Result<(), String> {
         }
     }
     if cases.contains(&"concave") {
-        for (file, turn) in [("teacup.obj", false), ("teapot.obj", false), ("teacup.obj", true)] {
+        for &(file, turn) in CONCAVE {
             if !wanted(file) {
                 continue;
             }
-            let mut truth = load_normalised(&data, file)?;
-            let mut name = file.split('.').next().unwrap_or(file).to_string();
-            if turn {
-                // Opening towards the front camera: rotate −90° about x (+y → +z).
-                truth.map_positions(|p| glam::Vec3::new(p.x, -p.z, p.y)).map_err(|e| e.to_string())?;
-                name.push_str(" (opening to front)");
-            }
+            let (name, truth) = load_concave(&data, file, turn)?;
             let views = render_oracle_views(&truth, &ortho, size).map_err(|e| e.to_string())?;
             runs.push(score(&name, "concave", "ortho", &truth, &views, Preset::Default)?);
         }

@@ -10,7 +10,18 @@
 //! 16 SyncDreamer views at 256² (composited over white), triangles and seconds. Meshes
 //! without colours get `wonder3d::dataset::procedural_colours`; spot is the bundled,
 //! textured one. Writes `target/bench/refine.json` and prints the markdown table.
+//!
+//! `--all` is the robustness sweep of issue #22 ("no self-intersections or NaN after
+//! refinement"): the same protocol on every mesh of `crate::recon::CLOSED` and
+//! `crate::recon::CONCAVE` (the 14 closed meshes, the teapot and both teacups), both rigs,
+//! oracle refinement for 2 iterations and identity for 1 (no PSNR, no 1-iteration run). Every
+//! refined mesh is checked for non-finite coordinates, watertightness and crossing triangle
+//! pairs; an error or a panic is recorded in its row (with the iteration it happened in) and
+//! the sweep goes on. `--meshes` filters by file stem. Writes `target/bench/refine_all_<size>.json`
+//! after every row, prints the markdown table, and fails at the end if any row broke one of
+//! those checks. `--rig ortho|persp` runs one rig only.
 
+use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::Path;
 use std::time::Instant;
 
@@ -20,10 +31,10 @@ use wonder3d::raster::render_oracle_views;
 use wonder3d::refine::{Enhancer, IdentityEnhancer, OracleEnhancer, RefineOptions, refine};
 use wonder3d::{Mesh, Pipeline, ViewRig, ViewSet};
 
-use crate::recon::{load_normalised, novel_view_fidelity, with_normal_noise};
+use crate::recon::{CLOSED, CONCAVE, load_concave, load_normalised, novel_view_fidelity, with_normal_noise};
 
 /// The objects of the issue's acceptance: (name, file in `../shared/data/meshes`; spot is bundled).
-const OBJECTS: [(&str, &str); 5] = [
+pub(crate) const OBJECTS: [(&str, &str); 5] = [
     ("spot", ""),
     ("armadillo", "armadillo.obj"),
     ("koala", "koala_low_resolution.obj"),
@@ -32,11 +43,11 @@ const OBJECTS: [(&str, &str); 5] = [
 ];
 
 /// Side of the noisy input views.
-const INPUT_SIZE: u32 = 128;
+pub(crate) const INPUT_SIZE: u32 = 128;
 /// Normal noise of the input views.
-const SIGMA: f32 = 0.05;
+pub(crate) const SIGMA: f32 = 0.05;
 
-fn truth(name: &str, file: &str) -> Result<Mesh, String> {
+pub(crate) fn truth(name: &str, file: &str) -> Result<Mesh, String> {
     if file.is_empty() {
         return wonder3d::demo::bundled_spot().map_err(|e| e.to_string());
     }
@@ -73,7 +84,14 @@ fn refined(
     Ok(row)
 }
 
-pub(crate) fn run(meshes: Option<&str>, size: u32, laplacian: Option<f32>, lr: Option<f32>) -> Result<(), String> {
+pub(crate) fn run(
+    meshes: Option<&str>,
+    all: bool,
+    rig: Option<&str>,
+    size: u32,
+    laplacian: Option<f32>,
+    lr: Option<f32>,
+) -> Result<(), String> {
     let mut mesh_options = wonder3d::recon::RefineOptions::default();
     if let Some(w) = laplacian {
         mesh_options = mesh_options.with_laplacian_weight(w);
@@ -82,6 +100,9 @@ pub(crate) fn run(meshes: Option<&str>, size: u32, laplacian: Option<f32>, lr: O
         mesh_options = mesh_options.with_lr(lr);
     }
     let wanted: Option<Vec<&str>> = meshes.map(|m| m.split(',').collect());
+    if all {
+        return sweep(wanted.as_deref(), rig, size, mesh_options);
+    }
     let mut rows = Vec::new();
     for (name, file) in OBJECTS {
         if wanted.as_ref().is_some_and(|w| !w.contains(&name)) {
@@ -157,4 +178,213 @@ fn table(rows: &[Value]) -> String {
         s.push('\n');
     }
     s
+}
+
+/// The meshes of the sweep: (table name, truth with procedural colours).
+fn sweep_meshes(wanted: Option<&[&str]>) -> Result<Vec<(String, Mesh)>, String> {
+    let dir = crate::workspace_root().join("../shared/data/meshes");
+    let keep = |file: &str| wanted.is_none_or(|w| w.iter().any(|m| file.split('.').next() == Some(m)));
+    let mut out = Vec::new();
+    for file in CLOSED.iter().filter(|f| keep(f)) {
+        let name = file.split('.').next().unwrap_or(file).to_string();
+        out.push((name, load_normalised(&dir, file)?));
+    }
+    for &(file, turned) in CONCAVE.iter().filter(|(f, _)| keep(f)) {
+        out.push(load_concave(&dir, file, turned)?);
+    }
+    out.into_iter()
+        .map(|(name, mesh)| {
+            let colours = wonder3d::dataset::procedural_colours(mesh.positions(), &name);
+            Ok((name, mesh.with_colours(colours).map_err(|e| e.to_string())?))
+        })
+        .collect()
+}
+
+/// The checks of one mesh: CD, triangles, finite coordinates, watertight, crossing pairs.
+fn checks(truth: &Mesh, mesh: &Mesh) -> Result<Value, String> {
+    let finite = mesh.positions().iter().flatten().all(|v| v.is_finite());
+    let cd = evaluate(mesh, truth, &EvalOptions::default()).map_err(|e| e.to_string())?.chamfer;
+    Ok(json!({
+        "chamfer": cd, "triangles": mesh.triangle_count(), "finite": finite,
+        "watertight": mesh.topology().is_watertight(), "crossings": mesh.self_intersections().len(),
+    }))
+}
+
+/// The message of a caught panic.
+fn panic_message(panic: Box<dyn std::any::Any + Send>) -> String {
+    panic
+        .downcast_ref::<String>()
+        .cloned()
+        .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+        .unwrap_or_else(|| "a panic without a message".into())
+}
+
+/// One refinement of the sweep, checked; an error or a panic becomes the row's `error`, with
+/// the iteration the loop had reached (from 1; 0: before the first, in the initial bake).
+fn checked_refine(
+    truth: &Mesh,
+    geometry: &Mesh,
+    views: &ViewSet,
+    enhancer: &dyn Enhancer,
+    options: &RefineOptions,
+) -> Value {
+    let t = Instant::now();
+    let mut reached = 0;
+    let result = catch_unwind(AssertUnwindSafe(|| {
+        let out = refine(geometry, views, enhancer, options, &mut |p| reached = p.iteration + 1)
+            .map_err(|e| e.to_string())?;
+        let mut row = checks(truth, &out.geometry)?;
+        // Per iteration: crossing pairs untangling left in the fit kept, and the fit's reruns.
+        let iterations = &out.report.iterations;
+        row["untangle_left"] = json!(iterations.iter().map(|i| i.mesh.untangle.after).collect::<Vec<_>>());
+        row["reseeds"] = json!(iterations.iter().map(|i| i.mesh.reseeds).collect::<Vec<_>>());
+        Ok::<_, String>(row)
+    }));
+    let mut row = match result {
+        Ok(Ok(row)) => row,
+        Ok(Err(e)) => json!({ "error": e, "iteration": reached }),
+        Err(panic) => json!({ "error": format!("panic: {}", panic_message(panic)), "iteration": reached }),
+    };
+    row["seconds"] = json!(t.elapsed().as_secs_f64());
+    row
+}
+
+/// What broke in one stage of a sweep row (empty when nothing did).
+fn broken(stage: &Value) -> Vec<String> {
+    let mut out = Vec::new();
+    if stage.is_null() {
+        return out; // not run: the coarse stage before it failed and is reported
+    }
+    if let Some(e) = stage.get("error") {
+        out.push(format!("error in iteration {}: {}", stage["iteration"], e.as_str().unwrap_or("?")));
+        return out;
+    }
+    if stage["finite"].as_bool() != Some(true) {
+        out.push("non-finite coordinates".into());
+    }
+    if stage["watertight"].as_bool() != Some(true) {
+        out.push("not watertight".into());
+    }
+    if let Some(n) = stage["crossings"].as_u64().filter(|&n| n > 0) {
+        out.push(format!("{n} crossing pairs"));
+    }
+    out
+}
+
+/// `--all`: the robustness sweep (see the module documentation).
+fn sweep(
+    wanted: Option<&[&str]>,
+    only_rig: Option<&str>,
+    size: u32,
+    mesh_options: wonder3d::recon::RefineOptions,
+) -> Result<(), String> {
+    let meshes = sweep_meshes(wanted)?;
+    let rigs: Vec<ViewRig> = [ViewRig::wonder3d_ortho(), ViewRig::wonder3d_persp()]
+        .into_iter()
+        .filter(|r| only_rig.is_none_or(|o| r.name == format!("wonder3d_{o}")))
+        .collect();
+    if rigs.is_empty() {
+        return Err(format!("--rig {only_rig:?}: expected ortho or persp"));
+    }
+    let rig_arg = only_rig.map(|r| format!(" --rig {r}")).unwrap_or_default();
+    let path = crate::target_dir().join("bench");
+    std::fs::create_dir_all(&path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let path = path.join(format!("refine_all_{size}.json"));
+    let start = Instant::now();
+    let mut rows: Vec<Value> = Vec::new();
+    for rig in rigs {
+        for (name, truth) in &meshes {
+            let t = Instant::now();
+            // The last stage the pipeline reported, to name where it failed.
+            let mut stage = String::from("rendering the views");
+            let coarse = catch_unwind(AssertUnwindSafe(|| -> Result<_, String> {
+                let clean = render_oracle_views(truth, &rig, INPUT_SIZE).map_err(|e| e.to_string())?;
+                let views = with_normal_noise(clean, SIGMA, 7)?;
+                let coarse = Pipeline::new()
+                    .from_views(&views, &mut |p| stage = format!("{:?} {}/{}", p.stage, p.done, p.total))
+                    .map_err(|e| e.to_string())?;
+                Ok((views, coarse))
+            }))
+            .unwrap_or_else(|panic| Err(format!("panic: {}", panic_message(panic))));
+            let mut row = json!({ "mesh": name, "rig": rig.name });
+            match coarse.and_then(|(views, coarse)| Ok((checks(truth, &coarse.geometry)?, views, coarse))) {
+                Err(e) => row["coarse"] = json!({ "error": format!("{e} (after {stage})"), "iteration": "coarse" }),
+                Ok((mut coarse_row, views, coarse)) => {
+                    coarse_row["seconds"] = json!(t.elapsed().as_secs_f64());
+                    row["coarse"] = coarse_row;
+                    let options = RefineOptions::default().with_size(size).with_mesh(mesh_options);
+                    let oracle = OracleEnhancer::new(truth.clone());
+                    row["oracle_2"] =
+                        checked_refine(truth, &coarse.geometry, &views, &oracle, &options.clone().with_iterations(2));
+                    row["identity_1"] =
+                        checked_refine(truth, &coarse.geometry, &views, &IdentityEnhancer, &options.with_iterations(1));
+                }
+            }
+            eprintln!("{}  [{:.0} s]", sweep_row(&row), start.elapsed().as_secs_f64());
+            rows.push(row);
+            let report = json!({
+                "command": format!("cargo xtask refine-table --all{rig_arg} --size {size}"),
+                "mesh_refinement": { "lr": mesh_options.lr, "laplacian_weight": mesh_options.laplacian_weight,
+                                     "steps": mesh_options.steps, "edge_len_lims": mesh_options.edge_len_lims },
+                "input": { "size": INPUT_SIZE, "normal_noise_sigma": SIGMA },
+                "machine": crate::cpu_model(),
+                "seconds": start.elapsed().as_secs_f64(),
+                "rows": rows,
+            });
+            write(&path, &serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?)?;
+        }
+    }
+    let mut s = format!("{SWEEP_HEADER}\n");
+    for r in &rows {
+        s.push_str(&sweep_row(r));
+        s.push('\n');
+    }
+    println!("{s}");
+    println!("wrote {}", path.display());
+    let failed: Vec<String> = rows
+        .iter()
+        .flat_map(|r| {
+            ["coarse", "oracle_2", "identity_1"].into_iter().flat_map(move |stage| {
+                broken(&r[stage]).into_iter().map(move |b| format!("{}, {}, {stage}: {b}", r["mesh"], r["rig"]))
+            })
+        })
+        .collect();
+    if !failed.is_empty() {
+        return Err(format!("refined meshes broke an invariant:\n{}", failed.join("\n")));
+    }
+    Ok(())
+}
+
+const SWEEP_HEADER: &str = "| mesh | rig | CD coarse → oracle 2 (identity 1) | triangles coarse → oracle 2 (identity 1) | watertight / crossings / non-finite after oracle 2, identity 1 | seconds oracle 2 + identity 1 |\n|---|---|---|---|---|---|";
+
+fn sweep_row(r: &Value) -> String {
+    let stage = |k: &str| -> (String, String, String) {
+        let v = &r[k];
+        if v.is_null() {
+            return ("–".into(), "–".into(), "–".into());
+        }
+        if let Some(e) = v.get("error") {
+            let e = format!("**error (iteration {}): {}**", v["iteration"], e.as_str().unwrap_or("?"));
+            return (e.clone(), "–".into(), e);
+        }
+        let ok = |b: bool, yes: &str, no: &str| if b { yes.to_string() } else { format!("**{no}**") };
+        let checks = format!(
+            "{} / {} / {}",
+            ok(v["watertight"].as_bool() == Some(true), "yes", "no"),
+            ok(v["crossings"].as_u64() == Some(0), "0", &v["crossings"].to_string()),
+            ok(v["finite"].as_bool() == Some(true), "none", "NaN"),
+        );
+        (format!("{:.4}", v["chamfer"].as_f64().unwrap_or(f64::NAN)), v["triangles"].to_string(), checks)
+    };
+    let (c_cd, c_tri, _) = stage("coarse");
+    let (o_cd, o_tri, o_ok) = stage("oracle_2");
+    let (i_cd, i_tri, i_ok) = stage("identity_1");
+    let secs = |k: &str| r[k]["seconds"].as_f64().unwrap_or(f64::NAN);
+    format!(
+        "| {} | {} | {c_cd} → {o_cd} ({i_cd}) | {c_tri} → {o_tri} ({i_tri}) | {o_ok}, {i_ok} | {:.0} + {:.0} |",
+        r["mesh"].as_str().unwrap_or(""),
+        r["rig"].as_str().unwrap_or(""),
+        secs("oracle_2"),
+        secs("identity_1"),
+    )
 }

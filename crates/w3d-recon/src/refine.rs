@@ -38,7 +38,7 @@ use std::time::Instant;
 use w3d_core::{Mesh, Result, ViewSet};
 
 use crate::coarse::{CoarseOptions, CoarseReport, reconstruct_coarse};
-use crate::pipeline::polish_moved;
+use crate::pipeline::{COARSE_RESEEDS, polish_moved};
 use crate::polish::PolishReport;
 use crate::untangle::{UntangleReport, untangle};
 
@@ -177,6 +177,9 @@ pub struct RefineReport {
     pub fit: CoarseReport,
     /// Untangling of the fitted mesh.
     pub untangle: UntangleReport,
+    /// Times the fit ran again because untangling left crossings (see [`refine_mesh`]; at
+    /// most [`COARSE_RESEEDS`]); the report's fit and untangling are those of the run kept.
+    pub reseeds: usize,
     /// Polishing of the vertices untangling moved.
     pub polish: PolishReport,
     /// Triangles of the refined mesh.
@@ -188,8 +191,9 @@ pub struct RefineReport {
 /// Fits `mesh` (closed, manifold, in the rig's world frame; attributes are dropped) to the
 /// normal maps and masks of `views` (square images through their rig, typically the four
 /// enhanced views of one refinement iteration) and cleans the result up like
-/// [`crate::reconstruct`] does. `progress` is called after every fitting step with
-/// `(steps done, steps in all, loss before the step)`.
+/// [`crate::reconstruct`] does, fitting again with other remesher seeds when untangling
+/// leaves crossings. `progress` is called after every fitting step with `(steps done, steps
+/// in all, loss before the step)`; a rerun counts its steps from the start again.
 pub fn refine_mesh(
     views: &ViewSet,
     mesh: &Mesh,
@@ -198,12 +202,30 @@ pub fn refine_mesh(
 ) -> Result<(Mesh, RefineReport)> {
     let start = Instant::now();
     let fit_options = options.fit();
-    let (fitted, fit) = reconstruct_coarse(views, mesh, &fit_options, progress)?;
-    let (untangled, untangle_report) = untangle(&fitted, options.untangle_rounds)?;
+    let (mut fitted, mut fit) = reconstruct_coarse(views, mesh, &fit_options, progress)?;
+    let (mut untangled, mut untangle_report) = untangle(&fitted, options.untangle_rounds)?;
+    // Untangling that ends with crossings left gets the fit again with the next remesher
+    // seeds (at most `COARSE_RESEEDS` times), as `crate::reconstruct` does for the coarse
+    // stage; the run with the fewest crossings left is kept. Unlike there, the reruns keep
+    // the remesher's repairs off: on the plane's one-edge-thick wings (perspective rig) a
+    // repaired rerun cleared the crossings but CD went 0.0050 → 0.0157 (`cargo xtask
+    // refine-table --all --size 256`, 2026-12-04). Without reruns the teacup turned to open
+    // towards the front (perspective rig) kept 2 crossing pairs after one identity iteration.
+    let mut reseeds = 0;
+    while untangle_report.after > 0 && options.untangle_rounds > 0 && reseeds < COARSE_RESEEDS {
+        reseeds += 1;
+        let again_options = fit_options.with_seed(fit_options.seed.wrapping_add(reseeds as u64));
+        let (again, again_fit) = reconstruct_coarse(views, mesh, &again_options, progress)?;
+        let (again_untangled, again_untangle) = untangle(&again, options.untangle_rounds)?;
+        if again_untangle.after < untangle_report.after {
+            (fitted, fit, untangled, untangle_report) = (again, again_fit, again_untangled, again_untangle);
+        }
+    }
     let (refined, polish_report) = polish_moved(views, &fitted, &untangled, &fit_options, options.polish_steps)?;
     let report = RefineReport {
         fit,
         untangle: untangle_report,
+        reseeds,
         polish: polish_report,
         triangles: refined.triangle_count(),
         seconds: start.elapsed().as_secs_f64(),

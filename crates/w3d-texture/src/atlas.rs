@@ -200,7 +200,21 @@ pub fn build_atlas(mesh: &Mesh, options: &AtlasOptions) -> Result<Atlas> {
             uvs.push([t.x as f32, t.y as f32]);
         }
         for (t, &f) in layout.triangles.iter().zip(&layout.faces) {
-            triangles[f as usize] = t.map(|v| v + base);
+            let mut triangle = t.map(|v| v + base);
+            // Charts index welded vertices, so a face whose corners share one position (a
+            // piece of the mesh shrunk to a point, as a coarse reconstruction can leave)
+            // would repeat an index; such a corner gets its own copy (same position and uv).
+            let input = mesh.triangles()[f as usize];
+            for k in 1..3 {
+                if triangle[..k].contains(&triangle[k]) {
+                    let copy = triangle[k] as usize;
+                    triangle[k] = positions.len() as u32;
+                    positions.push(mesh.positions()[input[k] as usize]);
+                    source_vertex.push(input[k]);
+                    uvs.push(uvs[copy]);
+                }
+            }
+            triangles[f as usize] = triangle;
             triangle_chart[f as usize] = c as u32;
             let [a, b, d] = t.map(|v| packing.texel(c, layout.uv[v as usize]));
             uv_area += 0.5 * (b - a).perp_dot(d - a);
