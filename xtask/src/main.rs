@@ -158,7 +158,7 @@ enum Task {
         meshes: Option<String>,
         /// The robustness sweep: every closed mesh, the teapot and the teacups, both rigs,
         /// oracle 2 iterations and identity 1, checked for NaN, crossings and watertightness
-        /// (target/bench/refine_all_<size>.json).
+        /// (`target/bench/refine_all_<size>.json`).
         #[arg(long)]
         all: bool,
         /// With `--all`: only this rig (`ortho` or `persp`).
