@@ -52,13 +52,7 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
     match args.refinement.refine(&output.geometry, &views, None, iterations, texture, args.quiet)? {
         Some(refined) => {
             wonder3d::save_mesh(&args.out, &refined.mesh)?;
-            println!(
-                "refined with the {} enhancer: {} iteration(s), {} triangles in {:.1} s",
-                refined.report.enhancer,
-                refined.report.iterations.len(),
-                refined.report.triangles,
-                refined.report.seconds
-            );
+            println!("{}", crate::refine::summary(&refined.report));
         }
         None => output.save(&args.out)?,
     }

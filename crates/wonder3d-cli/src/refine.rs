@@ -105,16 +105,19 @@ pub fn run(args: &RefineArgs) -> Result<()> {
         let json = serde_json::to_vec_pretty(&refined.report).map_err(|e| Error::invalid("report", e.to_string()))?;
         write_atomic(path, |w| std::io::Write::write_all(w, &json).map_err(|e| Error::io(path, e)))?;
     }
-    let r = &refined.report;
-    println!(
-        "refined with the {} enhancer: {} iteration(s), {} triangles in {:.1} s -> {}",
+    println!("{} -> {}", summary(&refined.report), args.out.display());
+    Ok(())
+}
+
+/// The one-line summary of a refinement printed by `refine`, `reconstruct` and `run`.
+pub fn summary(r: &wonder3d::refine::RefineReport) -> String {
+    format!(
+        "refined with the {} enhancer: {} iteration(s), {} triangles in {:.1} s",
         r.enhancer,
         r.iterations.len(),
         r.triangles,
-        r.seconds,
-        args.out.display()
-    );
-    Ok(())
+        r.seconds
+    )
 }
 
 /// [`refine`] with a progress bar (none with `quiet`).

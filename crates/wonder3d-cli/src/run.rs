@@ -85,13 +85,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
         write_atomic(path, |w| std::io::Write::write_all(w, json.as_bytes()).map_err(|e| Error::io(path, e)))?;
     }
     if let Some(refined) = &refined {
-        println!(
-            "refined with the {} enhancer: {} iteration(s), {} triangles in {:.1} s",
-            refined.report.enhancer,
-            refined.report.iterations.len(),
-            refined.report.triangles,
-            refined.report.seconds
-        );
+        println!("{}", crate::refine::summary(&refined.report));
     }
     let r = &output.report;
     println!(
