@@ -13,6 +13,8 @@
 //! `[-0.5, 0.5]³` for normalised meshes). [`MeshOptimizer`] is the usual entry point;
 //! [`ops`] exposes the individual operations on explicit face masks, [`EdgeTable`] the
 //! edge connectivity, [`check_manifold`] the invariants, [`icosphere`] a start mesh.
+//! [`simplify`] is the other direction: quadric edge collapse down to a distance
+//! tolerance, for meshes that carry more triangles than their shape needs.
 //!
 //! ```
 //! use w3d_remesh::{MeshOptimizer, RemeshOptions, icosphere};
@@ -46,6 +48,7 @@ mod optimizer;
 mod options;
 mod rows;
 mod shapes;
+mod simplify;
 mod topology;
 
 pub use edges::{EdgeTable, NONE};
@@ -54,4 +57,5 @@ pub use optimizer::MeshOptimizer;
 pub use options::RemeshOptions;
 pub use rows::VertexRows;
 pub use shapes::{geodesic_sphere, icosphere};
+pub use simplify::{Simplified, SimplifyOptions, SimplifyReport, simplify, simplify_keeping};
 pub use topology::{ManifoldSummary, check_manifold};

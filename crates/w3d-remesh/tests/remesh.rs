@@ -12,3 +12,5 @@ mod invariants;
 mod repair_ops;
 #[path = "remesh/shape_fit.rs"]
 mod shape_fit;
+#[path = "remesh/simplify.rs"]
+mod simplify;
