@@ -60,7 +60,7 @@ pub use pipeline::{
 };
 
 pub use polish::{PolishReport, polish};
-pub use refine::{RefineOptions, RefineReport, refine_mesh};
+pub use refine::{RefineOptions, RefineReport, SIMPLIFY_RETRIES, refine_mesh, simplify_without_crossings};
 pub use untangle::{UntangleReport, untangle, untangle_positions};
 
 pub use integrate::{IntegrateOptions, integrate_normals, integrate_normals_anchored};

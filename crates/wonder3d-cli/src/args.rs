@@ -178,6 +178,18 @@ pub fn refine_iterations(s: &str) -> Result<usize, String> {
     whole_in(s, 0, 10, " iterations")
 }
 
+/// `--simplify` of `wonder3d refine`: the mesh refinement's simplification tolerance.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Simplify(pub Option<f32>);
+
+/// `--simplify`: a tolerance in world units, 0 to 0.1 (the unit cube's tenth), or `off`.
+pub fn simplify(s: &str) -> Result<Simplify, String> {
+    if s == "off" {
+        return Ok(Simplify(None));
+    }
+    finite_in(s, 0.0, 0.1, "a tolerance in world units (or `off`)").map(|t| Simplify(Some(t as f32)))
+}
+
 /// DDIM steps: 1 to 1000 (the scheduler's training steps).
 pub fn steps(s: &str) -> Result<usize, String> {
     whole_in(s, 1, 1000, " steps")

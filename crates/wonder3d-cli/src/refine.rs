@@ -65,6 +65,11 @@ pub struct RefineArgs {
     /// Texture width and height in texels.
     #[arg(long, default_value_t = TextureOptions::default().size, allow_hyphen_values = true, value_parser = crate::args::texture_size)]
     texture_size: u32,
+    /// Simplify each refined mesh to this tolerance in world units (quadric edge collapse:
+    /// removes the triangles the shape does not need; default 0.0005), or `off` to keep every
+    /// triangle of the fit.
+    #[arg(long, allow_hyphen_values = true, value_parser = crate::args::simplify)]
+    simplify: Option<crate::args::Simplify>,
     /// Use the oracle mesh in its own coordinates (for views rendered with `wonder3d render
     /// --no-normalize`).
     #[arg(long)]
@@ -83,7 +88,11 @@ pub fn run(args: &RefineArgs) -> Result<()> {
     check_outputs(&args.out, args.report.as_deref(), None)?;
     let texture = TextureOptions::default().with_size(args.texture_size);
     texture.validate()?;
-    let options = RefineOptions::default().with_iterations(args.iterations).with_size(args.size).with_texture(texture);
+    let mut options =
+        RefineOptions::default().with_iterations(args.iterations).with_size(args.size).with_texture(texture);
+    if let Some(crate::args::Simplify(tolerance)) = args.simplify {
+        options = options.clone().with_mesh(options.mesh.with_simplify_tolerance(tolerance));
+    }
     let mut geometry = load_mesh(&args.mesh)?.without_attributes();
     crate::args::orient_outward(&mut geometry, &args.mesh);
     let enhancer: Box<dyn Enhancer> = match &args.enhancer {

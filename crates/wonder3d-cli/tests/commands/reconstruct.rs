@@ -124,6 +124,11 @@ fn refine_with_the_oracle_sharpens_a_coarse_mesh() {
     let json = crate::common::read_json(&report);
     assert_eq!(json["enhancer"], "oracle", "{json}");
     assert_eq!(json["iterations"].as_array().unwrap().len(), 1, "{json}");
+    // The default refinement simplifies the fitted mesh, and the report says by how much.
+    let simplified = &json["iterations"][0]["mesh"]["simplify"];
+    let (before, after) =
+        (simplified["triangles_before"].as_u64().unwrap(), simplified["triangles_after"].as_u64().unwrap());
+    assert!(after < before && json["triangles"].as_u64() == Some(after), "{json}");
     let mesh = wonder3d::load_mesh(&refined).unwrap();
     assert!(mesh.texture().is_some(), "the refined GLB carries its texture");
     let chamfer = |path: &std::path::Path| {
@@ -162,6 +167,11 @@ fn refine_names_what_is_wrong_before_any_work() {
     assert_eq!(run.status.code(), Some(2));
     let run = wonder3d(&["refine", &spot(), v, "--enhancer", "identity", "--iterations", "11", "--out", o]);
     assert_eq!(run.status.code(), Some(2));
+    for bad in ["-0.001", "nan", "0.5", "of"] {
+        let run = wonder3d(&["refine", &spot(), v, "--enhancer", "identity", "--simplify", bad, "--out", o]);
+        assert_eq!(run.status.code(), Some(2), "--simplify {bad}");
+        assert!(String::from_utf8_lossy(&run.stderr).contains("--simplify"), "--simplify {bad}");
+    }
     // A missing oracle mesh and a missing view folder are named.
     let missing = dir.path().join("no-such-mesh.obj");
     let run = wonder3d(&["refine", &spot(), v, "--enhancer", &format!("oracle:{}", missing.display()), "--out", o]);

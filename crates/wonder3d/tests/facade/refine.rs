@@ -53,6 +53,11 @@ fn the_oracle_enhancer_sharpens_geometry_and_texture_and_identity_does_no_harm()
         report.mesh.fit.seconds
     );
     assert!(oracle.geometry.topology().is_watertight() && oracle.geometry.self_intersections().is_empty());
+    // The fit's surplus triangles are simplified away, and the mesh that comes back is the
+    // simplified one.
+    let simplified = report.mesh.simplify.expect("the default refinement simplifies");
+    assert!(simplified.triangles_after < simplified.triangles_before, "{simplified:?}");
+    assert_eq!(simplified.triangles_after, oracle.geometry.triangle_count());
     assert!(cd < 0.9 * cd_before, "oracle refinement: CD {cd_before:.5} -> {cd:.5}");
     assert!(psnr > psnr_before + 0.5, "oracle refinement: PSNR {psnr_before:.2} -> {psnr:.2} dB");
 
