@@ -1,23 +1,32 @@
-//! `cargo xtask faces-chart [--meshes a,b] [--size 512]`: triangles against Chamfer distance
-//! of the refinement's adaptive mesh and of uniform-edge-length meshes fitted the same way
-//! ("model no more than a scene needs", issue #22), `docs/faces_accuracy.svg`.
+//! `cargo xtask faces-chart [--meshes a,b] [--size 512]`: triangles against accuracy of the
+//! refinement's meshes and of uniform-edge-length meshes fitted the same way ("model no more
+//! than a scene needs", issue #22), `docs/faces_accuracy.svg`.
 //!
 //! Per object of the refinement table (orthographic rig, the same noisy 128² oracle views and
-//! default coarse mesh as `cargo xtask refine-table`): two oracle-enhancer iterations with the
-//! default mesh refinement (edge lengths adapted between 0.01 and 0.016 by the remesher), and
-//! two with the edge-length limits pinned to one length `e` for each `e` of [`UNIFORM`], the
-//! uniform remesh of the same object under the same fit. The uniform points make a curve of
-//! triangles against CD; the triangles the uniform curve needs to reach the adaptive mesh's
-//! CD (linear in log triangles between the two bracketing points) give the ratio of the
-//! issue's goal (adaptive ≤ 50 % of uniform at equal CD). Writes `target/bench/faces.json`,
-//! the chart, and prints the markdown table of `docs/accuracy.md`.
+//! default coarse mesh as `cargo xtask refine-table`), two oracle-enhancer iterations:
+//! - with the default refinement (**refined**: edge lengths adapted between 0.01 and 0.016
+//!   by the remesher, then the quadric simplification at the default tolerance);
+//! - the same without the simplification (**adaptive**), and that mesh simplified at each
+//!   tolerance of [`TOLERANCES`] as the refinement does it (`simplify_without_crossings`: the
+//!   simplification curve);
+//! - with the edge-length limits pinned to one length `e` for each `e` of [`UNIFORM`] and no
+//!   simplification (**uniform**: a uniform remesh of the same object under the same fit).
+//!
+//! Accuracy is the exact surface Chamfer distance (sample points to the other *surface*,
+//! `w3d_eval::surface_chamfer`, no sampling floor), with the usual point-sampled Chamfer
+//! distance beside it. The triangles the uniform curve needs to reach the refined mesh's
+//! surface CD (linear in log triangles between the two bracketing points) give the ratio of
+//! the issue's goal (refined ≤ 50 % of uniform at equal CD); the last column is the smallest
+//! such share along the simplification curve. Writes `target/bench/faces.json`, the chart,
+//! and prints the markdown table of `docs/accuracy.md`; `--replot` redraws both from the JSON.
 
 use std::time::Instant;
 
 use plotters::prelude::*;
 use serde_json::{Value, json};
-use wonder3d::eval::{EvalOptions, evaluate};
+use wonder3d::eval::{EvalOptions, evaluate, surface_chamfer};
 use wonder3d::raster::render_oracle_views;
+use wonder3d::recon::simplify_without_crossings;
 use wonder3d::refine::{OracleEnhancer, RefineOptions, refine};
 use wonder3d::{Mesh, Pipeline, ViewRig, ViewSet};
 
@@ -25,27 +34,41 @@ use crate::recon::with_normal_noise;
 use crate::refine_table::{INPUT_SIZE, OBJECTS, SIGMA, truth};
 
 /// Edge lengths of the uniform meshes (world units, the unit cube), coarse to fine.
-const UNIFORM: [f32; 5] = [0.02, 0.016, 0.012, 0.009, 0.007];
+const UNIFORM: [f32; 7] = [0.05, 0.04, 0.03, 0.025, 0.02, 0.016, 0.012];
+
+/// Tolerances of the simplification curve (world units), fine to coarse.
+const TOLERANCES: [f32; 4] = [0.00025, 0.0005, 0.001, 0.002];
 
 /// Refinement iterations of every point (the authors' `num_refine`).
 const ITERATIONS: usize = 2;
 
-/// CD and triangles of `geometry` against `truth`, with the seconds it took.
+/// Surface samples per mesh of the exact surface Chamfer distance.
+const SURFACE_SAMPLES: usize = 100_000;
+
+/// Both Chamfer distances and the triangles of `geometry` against `truth`, with the seconds
+/// it took.
 fn point(truth: &Mesh, geometry: &Mesh, seconds: f64) -> Result<Value, String> {
     let cd = evaluate(geometry, truth, &EvalOptions::default()).map_err(|e| e.to_string())?.chamfer;
-    Ok(json!({ "chamfer": cd, "triangles": geometry.triangle_count(), "seconds": seconds }))
+    let surface = surface_chamfer(geometry, truth, SURFACE_SAMPLES, 0).map_err(|e| e.to_string())?.chamfer;
+    Ok(json!({ "surface_chamfer": surface, "chamfer": cd, "triangles": geometry.triangle_count(), "seconds": seconds }))
 }
 
-/// Two oracle iterations from `coarse` with the mesh refinement's edge-length limits `lims`.
-fn refined(truth: &Mesh, coarse: &Mesh, views: &ViewSet, size: u32, lims: (f32, f32)) -> Result<Value, String> {
-    let mesh = wonder3d::recon::RefineOptions::default().with_edge_len_lims(lims);
+/// Two oracle iterations from `coarse` with the mesh refinement's edge-length limits `lims`
+/// and simplification tolerance `simplify`: the geometry and the seconds it took.
+fn refined(
+    truth: &Mesh,
+    coarse: &Mesh,
+    views: &ViewSet,
+    size: u32,
+    lims: (f32, f32),
+    simplify: Option<f32>,
+) -> Result<(Mesh, f64), String> {
+    let mesh = wonder3d::recon::RefineOptions::default().with_edge_len_lims(lims).with_simplify_tolerance(simplify);
     let options = RefineOptions::default().with_size(size).with_mesh(mesh).with_iterations(ITERATIONS);
     let t = Instant::now();
     let out =
         refine(coarse, views, &OracleEnhancer::new(truth.clone()), &options, &mut |_| {}).map_err(|e| e.to_string())?;
-    let mut p = point(truth, &out.geometry, t.elapsed().as_secs_f64())?;
-    p["edge_len_lims"] = json!([lims.0, lims.1]);
-    Ok(p)
+    Ok((out.geometry, t.elapsed().as_secs_f64()))
 }
 
 /// Triangles the uniform curve needs to reach `cd`: `Ok(n)` interpolated between the two
@@ -66,13 +89,16 @@ fn uniform_triangles_at(uniform: &[(f64, f64)], cd: f64) -> Result<f64, bool> {
     Err(true)
 }
 
-/// The ratio cell of one object: adaptive triangles over the uniform triangles at equal CD.
+/// `(triangles, surface CD)` of one point.
+fn xy(p: &Value) -> (f64, f64) {
+    (crate::recon::f(p, &["triangles"]), crate::recon::f(p, &["surface_chamfer"]))
+}
+
+/// The ratio cell of one object: refined triangles over the uniform triangles at equal
+/// surface CD.
 fn ratio_cell(row: &Value) -> (String, Option<f64>) {
-    let uniform: Vec<(f64, f64)> = row["uniform"]
-        .as_array()
-        .map(|a| a.iter().map(|p| (crate::recon::f(p, &["triangles"]), crate::recon::f(p, &["chamfer"]))).collect())
-        .unwrap_or_default();
-    let (n, cd) = (crate::recon::f(row, &["refined", "triangles"]), crate::recon::f(row, &["refined", "chamfer"]));
+    let uniform: Vec<(f64, f64)> = row["uniform"].as_array().map(|a| a.iter().map(xy).collect()).unwrap_or_default();
+    let (n, cd) = xy(&row["refined"]);
     match uniform_triangles_at(&uniform, cd) {
         Ok(u) => (format!("{:.0} → **{:.0} %**", u, 100.0 * n / u), Some(n / u)),
         Err(true) => {
@@ -81,23 +107,62 @@ fn ratio_cell(row: &Value) -> (String, Option<f64>) {
         }
         Err(false) => {
             let coarsest = uniform.first().map_or(f64::NAN, |p| p.0);
-            (format!("< {coarsest:.0} → **> {:.0} %**", 100.0 * n / coarsest), None)
+            (format!("< {coarsest:.0} (the coarsest is already as good) → **> {:.0} %**", 100.0 * n / coarsest), None)
         }
     }
 }
 
-const HEADER: &str = "| mesh | coarse CD / triangles | adaptive refined CD / triangles | uniform refined CD / triangles, edge 0.02 → 0.007 | uniform triangles at the adaptive CD → adaptive / uniform |\n|---|---|---|---|---|";
+/// The smallest share of the uniform curve's triangles at equal surface CD along the
+/// simplification curve (the adaptive mesh and its simplifications): `(share, tolerance)`,
+/// tolerance `None` for the adaptive mesh itself; `None` when no point is bracketed.
+fn best_ratio(row: &Value) -> Option<(f64, Option<f64>)> {
+    let uniform: Vec<(f64, f64)> = row["uniform"].as_array().map(|a| a.iter().map(xy).collect()).unwrap_or_default();
+    let mut points = vec![(xy(&row["adaptive"]), None)];
+    for p in row["simplified"].as_array().into_iter().flatten() {
+        points.push((xy(p), p["tolerance"].as_f64()));
+    }
+    points
+        .into_iter()
+        .filter_map(|((n, cd), t)| uniform_triangles_at(&uniform, cd).ok().map(|u| (n / u, t)))
+        .min_by(|a, b| a.0.total_cmp(&b.0))
+}
+
+fn best_ratio_cell(row: &Value) -> String {
+    match best_ratio(row) {
+        Some((r, Some(t))) => format!("{:.0} % (tolerance {t:.5})", 100.0 * r),
+        Some((r, None)) => format!("{:.0} % (not simplified)", 100.0 * r),
+        None => "none bracketed".into(),
+    }
+}
+
+const HEADER: &str = "| mesh | coarse | adaptive | refined (simplified) | uniform, edge 0.05 → 0.012 | uniform triangles at the refined surface CD → refined / uniform | best along the simplification curve |\n|---|---|---|---|---|---|---|";
+
+/// One point as `surface CD (sampled CD) / triangles`.
+fn cell(p: &Value) -> String {
+    format!(
+        "{:.4} ({:.4}) / {}",
+        crate::recon::f(p, &["surface_chamfer"]),
+        crate::recon::f(p, &["chamfer"]),
+        p["triangles"]
+    )
+}
 
 fn row_markdown(row: &Value) -> String {
-    let cell = |p: &Value| format!("{:.4} / {}", crate::recon::f(p, &["chamfer"]), p["triangles"]);
-    let uniform: Vec<String> = row["uniform"].as_array().map(|a| a.iter().map(cell).collect()).unwrap_or_default();
+    let uniform: Vec<String> = row["uniform"]
+        .as_array()
+        .map(|a| {
+            a.iter().map(|p| format!("{:.4} / {}", crate::recon::f(p, &["surface_chamfer"]), p["triangles"])).collect()
+        })
+        .unwrap_or_default();
     format!(
-        "| {} | {} | {} | {} | {} |",
+        "| {} | {} | {} | {} | {} | {} | {} |",
         row["mesh"].as_str().unwrap_or(""),
         cell(&row["coarse"]),
+        cell(&row["adaptive"]),
         cell(&row["refined"]),
         uniform.join(", "),
-        ratio_cell(row).0
+        ratio_cell(row).0,
+        best_ratio_cell(row)
     )
 }
 
@@ -108,7 +173,8 @@ pub(crate) fn run(meshes: Option<&str>, size: u32) -> Result<(), String> {
     std::fs::create_dir_all(&bench).map_err(|e| format!("{}: {e}", bench.display()))?;
     let start = Instant::now();
     let rig = ViewRig::wonder3d_ortho();
-    let default_lims = wonder3d::recon::RefineOptions::default().edge_len_lims;
+    let defaults = wonder3d::recon::RefineOptions::default();
+    let default_lims = defaults.edge_len_lims;
     let mut rows = Vec::new();
     for (name, file) in OBJECTS {
         if wanted.as_ref().is_some_and(|w| !w.contains(&name)) {
@@ -120,14 +186,33 @@ pub(crate) fn run(meshes: Option<&str>, size: u32) -> Result<(), String> {
         let t = Instant::now();
         let coarse = Pipeline::new().from_views(&views, &mut |_| {}).map_err(|e| e.to_string())?;
         let coarse_point = point(&truth, &coarse.geometry, t.elapsed().as_secs_f64())?;
-        let adaptive = refined(&truth, &coarse.geometry, &views, size, default_lims)?;
+        let (mesh, seconds) =
+            refined(&truth, &coarse.geometry, &views, size, default_lims, defaults.simplify_tolerance)?;
+        let refined_point = point(&truth, &mesh, seconds)?;
+        let (adaptive, seconds) = refined(&truth, &coarse.geometry, &views, size, default_lims, None)?;
+        let adaptive_point = point(&truth, &adaptive, seconds)?;
+        let mut simplified = Vec::new();
+        for tolerance in TOLERANCES {
+            let t = Instant::now();
+            let (simple, report) =
+                simplify_without_crossings(adaptive.clone(), tolerance).map_err(|e| e.to_string())?;
+            let mut p = point(&truth, &simple, t.elapsed().as_secs_f64())?;
+            p["tolerance"] = json!(tolerance);
+            p["kept_unsimplified"] = json!(report.is_none());
+            simplified.push(p);
+        }
         let mut uniform = Vec::new();
         for e in UNIFORM {
-            uniform.push(refined(&truth, &coarse.geometry, &views, size, (e, e))?);
+            let (mesh, seconds) = refined(&truth, &coarse.geometry, &views, size, (e, e), None)?;
+            let mut p = point(&truth, &mesh, seconds)?;
+            p["edge_length"] = json!(e);
+            uniform.push(p);
             eprintln!("  {name} uniform {e}: {}  [{:.0} s]", uniform.last().unwrap(), start.elapsed().as_secs_f64());
         }
-        let row =
-            json!({ "mesh": name, "rig": rig.name, "coarse": coarse_point, "refined": adaptive, "uniform": uniform });
+        let row = json!({
+            "mesh": name, "rig": rig.name, "coarse": coarse_point, "refined": refined_point,
+            "adaptive": adaptive_point, "simplified": simplified, "uniform": uniform,
+        });
         eprintln!("{}", row_markdown(&row));
         rows.push(row);
     }
@@ -138,7 +223,10 @@ pub(crate) fn run(meshes: Option<&str>, size: u32) -> Result<(), String> {
         "command": format!("cargo xtask faces-chart --size {size}"),
         "iterations": ITERATIONS,
         "uniform_edge_lengths": UNIFORM,
+        "simplify_tolerances": TOLERANCES,
+        "default_simplify_tolerance": defaults.simplify_tolerance,
         "adaptive_edge_len_lims": [default_lims.0, default_lims.1],
+        "surface_samples": SURFACE_SAMPLES,
         "input": { "size": INPUT_SIZE, "normal_noise_sigma": SIGMA, "rig": rig.name },
         "machine": crate::cpu_model(),
         "seconds": start.elapsed().as_secs_f64(),
@@ -148,13 +236,35 @@ pub(crate) fn run(meshes: Option<&str>, size: u32) -> Result<(), String> {
     std::fs::write(&path, serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?)
         .map_err(|e| format!("{}: {e}", path.display()))?;
     chart(&rows, &out_svg)?;
+    print_table(&rows);
+    println!("wrote {} and {}", path.display(), out_svg.display());
+    Ok(())
+}
+
+fn print_table(rows: &[Value]) {
     let mut s = format!("{HEADER}\n");
-    for r in &rows {
+    for r in rows {
         s.push_str(&row_markdown(r));
         s.push('\n');
     }
     println!("{s}");
-    println!("wrote {} and {}", path.display(), out_svg.display());
+}
+
+/// `cargo xtask faces-chart --replot`: the chart and the table again from
+/// `target/bench/faces.json`, without measuring.
+pub(crate) fn replot() -> Result<(), String> {
+    let path = crate::target_dir().join("bench").join("faces.json");
+    let text = std::fs::read_to_string(&path)
+        .map_err(|e| format!("{}: {e} (run `cargo xtask faces-chart` first)", path.display()))?;
+    let report: Value = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+    let rows = report["rows"].as_array().cloned().unwrap_or_default();
+    if rows.is_empty() {
+        return Err(format!("{}: no rows", path.display()));
+    }
+    let out_svg = crate::workspace_root().join("docs").join("faces_accuracy.svg");
+    chart(&rows, &out_svg)?;
+    print_table(&rows);
+    println!("wrote {}", out_svg.display());
     Ok(())
 }
 
@@ -167,21 +277,25 @@ const COLOURS: [RGBColor; 5] = [
     RGBColor(86, 180, 233),
 ];
 
-/// The chart: per object the uniform curve (line and dots), the adaptive refined mesh (a
-/// filled diamond) and the coarse mesh (a hollow square), triangles on a log axis.
+/// The chart: per object the uniform curve (solid line and dots), the simplification curve
+/// of the adaptive mesh (dashed line and small triangles), the refined mesh of the defaults
+/// (a large filled triangle) and the coarse mesh (a hollow square); triangles on a log axis,
+/// surface Chamfer distance up.
 fn chart(rows: &[Value], out: &std::path::Path) -> Result<(), String> {
-    let pts = |p: &Value| (crate::recon::f(p, &["triangles"]), crate::recon::f(p, &["chamfer"]));
+    let series =
+        |r: &Value, key: &str| -> Vec<(f64, f64)> { r[key].as_array().into_iter().flatten().map(xy).collect() };
     let all: Vec<(f64, f64)> = rows
         .iter()
         .flat_map(|r| {
-            let mut v = vec![pts(&r["coarse"]), pts(&r["refined"])];
-            v.extend(r["uniform"].as_array().into_iter().flatten().map(pts));
+            let mut v = vec![xy(&r["coarse"]), xy(&r["refined"]), xy(&r["adaptive"])];
+            v.extend(series(r, "uniform"));
+            v.extend(series(r, "simplified"));
             v
         })
         .collect();
     let (min_n, max_n) = all.iter().fold((f64::MAX, 0f64), |(a, b), p| (a.min(p.0), b.max(p.0)));
     let max_cd = all.iter().fold(0f64, |a, p| a.max(p.1)) * 1.1;
-    let root = SVGBackend::new(out, (860, 540)).into_drawing_area();
+    let root = SVGBackend::new(out, (900, 580)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| e.to_string())?;
     let mut chart = ChartBuilder::on(&root)
         .caption("Refinement: triangles against accuracy (oracle enhancer, 2 iterations, ortho)", ("sans-serif", 18))
@@ -195,24 +309,32 @@ fn chart(rows: &[Value], out: &std::path::Path) -> Result<(), String> {
         .light_line_style(RGBColor(240, 240, 240))
         .bold_line_style(RGBColor(200, 200, 200))
         .x_desc("triangles (log scale)")
-        .y_desc("Chamfer")
+        .y_desc("surface Chamfer distance")
         .draw()
         .map_err(|e| e.to_string())?;
     for (r, &colour) in rows.iter().zip(COLOURS.iter().cycle()) {
         let name = r["mesh"].as_str().unwrap_or("").to_string();
-        let uniform: Vec<(f64, f64)> = r["uniform"].as_array().into_iter().flatten().map(pts).collect();
+        let uniform = series(r, "uniform");
         chart
             .draw_series(LineSeries::new(uniform.clone(), colour.stroke_width(2)))
             .map_err(|e| e.to_string())?
-            .label(format!("{name}: uniform edge 0.02 → 0.007"))
+            .label(format!("{name}: uniform edges"))
             .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], colour.stroke_width(2)));
         chart.draw_series(uniform.iter().map(|&p| Circle::new(p, 3, colour.filled()))).map_err(|e| e.to_string())?;
+        let mut simplified = vec![xy(&r["adaptive"])];
+        simplified.extend(series(r, "simplified"));
         chart
-            .draw_series(std::iter::once(TriangleMarker::new(pts(&r["refined"]), 8, colour.filled())))
+            .draw_series(DashedLineSeries::new(simplified.clone(), 5, 4, colour.stroke_width(1)))
+            .map_err(|e| e.to_string())?;
+        chart
+            .draw_series(simplified.iter().map(|&p| TriangleMarker::new(p, 4, colour.filled())))
+            .map_err(|e| e.to_string())?;
+        chart
+            .draw_series(std::iter::once(TriangleMarker::new(xy(&r["refined"]), 9, colour.filled())))
             .map_err(|e| e.to_string())?
-            .label(format!("{name}: adaptive (0.01–0.016)"))
+            .label(format!("{name}: refined (adaptive, simplified)"))
             .legend(move |(x, y)| TriangleMarker::new((x + 10, y), 6, colour.filled()));
-        let (cx, cy) = pts(&r["coarse"]);
+        let (cx, cy) = xy(&r["coarse"]);
         chart
             .draw_series(std::iter::once(
                 EmptyElement::at((cx, cy)) + Rectangle::new([(-4, -4), (4, 4)], colour.stroke_width(2)),

@@ -173,6 +173,14 @@ enum Task {
         /// Learning rate of the mesh refinement (default: `w3d_recon::RefineOptions`'s).
         #[arg(long)]
         lr: Option<f32>,
+        /// Edge-length limits `MIN,MAX` of the mesh refinement (default:
+        /// `w3d_recon::RefineOptions`'s).
+        #[arg(long, value_delimiter = ',')]
+        edges: Option<Vec<f32>>,
+        /// Simplification tolerance of the mesh refinement, or `off` (default:
+        /// `w3d_recon::RefineOptions`'s).
+        #[arg(long)]
+        simplify: Option<String>,
     },
     /// Regenerate committed test fixtures with the Python peer tools.
     Fixtures {
@@ -181,9 +189,9 @@ enum Task {
     },
     /// Draw the SVG charts in docs/ (speed against accuracy) from target/bench/*.json.
     Chart,
-    /// Triangles against Chamfer distance of the adaptive refined mesh and of uniform-edge
-    /// meshes fitted the same way (five objects, oracle enhancer): target/bench/faces.json
-    /// and docs/faces_accuracy.svg.
+    /// Triangles against Chamfer distance of the refined (adaptive, simplified) mesh and of
+    /// uniform-edge meshes fitted the same way (five objects, oracle enhancer):
+    /// target/bench/faces.json and docs/faces_accuracy.svg.
     FacesChart {
         /// Only these objects (comma-separated: spot, armadillo, koala, horse, plane).
         #[arg(long)]
@@ -191,6 +199,9 @@ enum Task {
         /// Side of the enhanced views in pixels.
         #[arg(long, default_value_t = 512)]
         size: u32,
+        /// Redraw the chart and the table from target/bench/faces.json instead of measuring.
+        #[arg(long)]
+        replot: bool,
     },
     /// Check that every dependency the README's demo command compiles is compiled with the
     /// same features by the test command (so the tests reuse it instead of rebuilding it).
@@ -696,7 +707,13 @@ fn main() -> ExitCode {
         Task::Deny => deny(),
         Task::GpuCheck => gpu::check(),
         Task::Chart => chart::run(),
-        Task::FacesChart { meshes, size } => faces_chart::run(meshes.as_deref(), size),
+        Task::FacesChart { meshes, size, replot } => {
+            if replot {
+                faces_chart::replot()
+            } else {
+                faces_chart::run(meshes.as_deref(), size)
+            }
+        }
         Task::Package { verify } => package(verify),
         Task::BuildParity => build_parity(),
         Task::ValidateGlb { files } => validate_glb(&files),
@@ -709,8 +726,9 @@ fn main() -> ExitCode {
         }
         Task::ShipSmall { model } => train_small::ship(&model),
         Task::Bench { suite, criterion_args } => bench(&suite, &criterion_args),
-        Task::RefineTable { meshes, all, rig, size, laplacian, lr } => {
-            refine_table::run(meshes.as_deref(), all, rig.as_deref(), size, laplacian, lr)
+        Task::RefineTable { meshes, all, rig, size, laplacian, lr, edges, simplify } => {
+            refine_table::mesh_options(laplacian, lr, edges.as_deref(), simplify.as_deref())
+                .and_then(|mesh| refine_table::run(meshes.as_deref(), all, rig.as_deref(), size, mesh))
         }
     };
     match result {

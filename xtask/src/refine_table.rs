@@ -26,7 +26,7 @@ use std::path::Path;
 use std::time::Instant;
 
 use serde_json::{Value, json};
-use wonder3d::eval::{EvalOptions, evaluate};
+use wonder3d::eval::{EvalOptions, evaluate, surface_chamfer};
 use wonder3d::raster::render_oracle_views;
 use wonder3d::refine::{Enhancer, IdentityEnhancer, OracleEnhancer, RefineOptions, refine};
 use wonder3d::{Mesh, Pipeline, ViewRig, ViewSet};
@@ -60,8 +60,10 @@ pub(crate) fn truth(name: &str, file: &str) -> Result<Mesh, String> {
 /// Chamfer distance, novel-view PSNR and triangles of `mesh` (textured) / `geometry`.
 fn scores(truth: &Mesh, geometry: &Mesh, textured: &Mesh) -> Result<Value, String> {
     let cd = evaluate(geometry, truth, &EvalOptions::default()).map_err(|e| e.to_string())?.chamfer;
+    let surface = surface_chamfer(geometry, truth, 100_000, 0).map_err(|e| e.to_string())?.chamfer;
     let (psnr, ssim) = novel_view_fidelity(truth, textured, 256)?;
-    Ok(json!({ "chamfer": cd, "psnr": psnr, "ssim": ssim, "triangles": geometry.triangle_count() }))
+    Ok(json!({ "chamfer": cd, "surface_chamfer": surface, "psnr": psnr, "ssim": ssim,
+               "triangles": geometry.triangle_count() }))
 }
 
 fn refined(
@@ -84,14 +86,13 @@ fn refined(
     Ok(row)
 }
 
-pub(crate) fn run(
-    meshes: Option<&str>,
-    all: bool,
-    rig: Option<&str>,
-    size: u32,
+/// The mesh refinement's options with the command line's changes to the defaults.
+pub(crate) fn mesh_options(
     laplacian: Option<f32>,
     lr: Option<f32>,
-) -> Result<(), String> {
+    edges: Option<&[f32]>,
+    simplify: Option<&str>,
+) -> Result<wonder3d::recon::RefineOptions, String> {
     let mut mesh_options = wonder3d::recon::RefineOptions::default();
     if let Some(w) = laplacian {
         mesh_options = mesh_options.with_laplacian_weight(w);
@@ -99,6 +100,30 @@ pub(crate) fn run(
     if let Some(lr) = lr {
         mesh_options = mesh_options.with_lr(lr);
     }
+    if let Some(edges) = edges {
+        match *edges {
+            [lo, hi] if lo > 0.0 && lo <= hi => mesh_options = mesh_options.with_edge_len_lims((lo, hi)),
+            _ => return Err(format!("--edges {edges:?}: MIN,MAX with 0 < MIN ≤ MAX")),
+        }
+    }
+    match simplify {
+        None => {}
+        Some("off") => mesh_options = mesh_options.with_simplify_tolerance(None),
+        Some(t) => {
+            let t: f32 = t.parse().map_err(|_| format!("--simplify {t}: a tolerance in world units, or `off`"))?;
+            mesh_options = mesh_options.with_simplify_tolerance(Some(t));
+        }
+    }
+    Ok(mesh_options)
+}
+
+pub(crate) fn run(
+    meshes: Option<&str>,
+    all: bool,
+    rig: Option<&str>,
+    size: u32,
+    mesh_options: wonder3d::recon::RefineOptions,
+) -> Result<(), String> {
     let wanted: Option<Vec<&str>> = meshes.map(|m| m.split(',').collect());
     if all {
         return sweep(wanted.as_deref(), rig, size, mesh_options);
@@ -135,7 +160,8 @@ pub(crate) fn run(
     let report = json!({
         "command": format!("cargo xtask refine-table --size {size}"),
         "mesh_refinement": { "lr": mesh_options.lr, "laplacian_weight": mesh_options.laplacian_weight,
-                             "steps": mesh_options.steps, "edge_len_lims": mesh_options.edge_len_lims },
+                             "steps": mesh_options.steps, "edge_len_lims": mesh_options.edge_len_lims,
+                             "simplify_tolerance": mesh_options.simplify_tolerance },
         "input": { "size": INPUT_SIZE, "normal_noise_sigma": SIGMA },
         "rows": rows,
     });
@@ -149,18 +175,22 @@ fn write(path: &Path, text: &str) -> Result<(), String> {
     std::fs::write(path, text).map_err(|e| format!("{}: {e}", path.display()))
 }
 
-const HEADER: &str = "| mesh | rig | CD coarse → oracle 1 → oracle 2 (identity 1) | novel-view PSNR dB coarse → oracle 1 → oracle 2 (identity 1) | triangles coarse → oracle 2 | seconds per oracle iteration |\n|---|---|---|---|---|---|";
+const HEADER: &str = "| mesh | rig | CD coarse → oracle 1 → oracle 2 (identity 1) | surface CD coarse → oracle 1 → oracle 2 (identity 1) | novel-view PSNR dB coarse → oracle 1 → oracle 2 (identity 1) | triangles coarse → oracle 2 | seconds per oracle iteration |\n|---|---|---|---|---|---|---|";
 
 fn row_markdown(r: &Value) -> String {
     let f = |k: &str, m: &str| crate::recon::f(r, &[k, m]);
     format!(
-        "| {} | {} | {:.4} → {:.4} → {:.4} ({:.4}) | {:.2} → {:.2} → {:.2} ({:.2}) | {} → {} | {:.1} |",
+        "| {} | {} | {:.4} → {:.4} → {:.4} ({:.4}) | {:.5} → {:.5} → {:.5} ({:.5}) | {:.2} → {:.2} → {:.2} ({:.2}) | {} → {} | {:.1} |",
         r["mesh"].as_str().unwrap_or(""),
         r["rig"].as_str().unwrap_or(""),
         f("coarse", "chamfer"),
         f("oracle_1", "chamfer"),
         f("oracle_2", "chamfer"),
         f("identity_1", "chamfer"),
+        f("coarse", "surface_chamfer"),
+        f("oracle_1", "surface_chamfer"),
+        f("oracle_2", "surface_chamfer"),
+        f("identity_1", "surface_chamfer"),
         f("coarse", "psnr"),
         f("oracle_1", "psnr"),
         f("oracle_2", "psnr"),
@@ -325,7 +355,8 @@ fn sweep(
             let report = json!({
                 "command": format!("cargo xtask refine-table --all{rig_arg} --size {size}"),
                 "mesh_refinement": { "lr": mesh_options.lr, "laplacian_weight": mesh_options.laplacian_weight,
-                                     "steps": mesh_options.steps, "edge_len_lims": mesh_options.edge_len_lims },
+                                     "steps": mesh_options.steps, "edge_len_lims": mesh_options.edge_len_lims,
+                                     "simplify_tolerance": mesh_options.simplify_tolerance },
                 "input": { "size": INPUT_SIZE, "normal_noise_sigma": SIGMA },
                 "machine": crate::cpu_model(),
                 "seconds": start.elapsed().as_secs_f64(),
