@@ -159,9 +159,7 @@ pub(crate) fn run(
     let path = out.join("refine.json");
     let report = json!({
         "command": format!("cargo xtask refine-table --size {size}"),
-        "mesh_refinement": { "lr": mesh_options.lr, "laplacian_weight": mesh_options.laplacian_weight,
-                             "steps": mesh_options.steps, "edge_len_lims": mesh_options.edge_len_lims,
-                             "simplify_tolerance": mesh_options.simplify_tolerance },
+        "mesh_refinement": mesh_refinement_json(&mesh_options),
         "input": { "size": INPUT_SIZE, "normal_noise_sigma": SIGMA },
         "rows": rows,
     });
@@ -169,6 +167,12 @@ pub(crate) fn run(
     println!("{}", table(&rows));
     println!("wrote {}", path.display());
     Ok(())
+}
+
+/// The mesh refinement settings a report records.
+fn mesh_refinement_json(o: &wonder3d::recon::RefineOptions) -> Value {
+    json!({ "lr": o.lr, "laplacian_weight": o.laplacian_weight, "steps": o.steps,
+            "edge_len_lims": o.edge_len_lims, "simplify_tolerance": o.simplify_tolerance })
 }
 
 fn write(path: &Path, text: &str) -> Result<(), String> {
@@ -354,9 +358,7 @@ fn sweep(
             rows.push(row);
             let report = json!({
                 "command": format!("cargo xtask refine-table --all{rig_arg} --size {size}"),
-                "mesh_refinement": { "lr": mesh_options.lr, "laplacian_weight": mesh_options.laplacian_weight,
-                                     "steps": mesh_options.steps, "edge_len_lims": mesh_options.edge_len_lims,
-                                     "simplify_tolerance": mesh_options.simplify_tolerance },
+                "mesh_refinement": mesh_refinement_json(&mesh_options),
                 "input": { "size": INPUT_SIZE, "normal_noise_sigma": SIGMA },
                 "machine": crate::cpu_model(),
                 "seconds": start.elapsed().as_secs_f64(),

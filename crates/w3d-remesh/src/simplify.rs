@@ -202,7 +202,9 @@ struct Simplifier {
 }
 
 impl Simplifier {
-    fn new(mesh: &Mesh, options: &SimplifyOptions, keep: &[bool]) -> Self {
+    /// The simplifier's state for `mesh`, and the mesh's unique edges `[min, max]` (sorted
+    /// once here, for the locks and for the first costing).
+    fn new(mesh: &Mesh, options: &SimplifyOptions, keep: &[bool]) -> (Self, Vec<[u32; 2]>) {
         let pos: Vec<DVec3> = mesh.positions().iter().map(|p| DVec3::from(p.map(f64::from))).collect();
         let faces = mesh.triangles().to_vec();
         let n = pos.len();
@@ -233,9 +235,10 @@ impl Simplifier {
                 locked[run[0][1] as usize] = true;
             }
         }
+        edges.dedup();
         let (lo, hi) = mesh.bbox();
         let diagonal = f64::from((hi - lo).length());
-        Simplifier {
+        let simplifier = Simplifier {
             pos,
             live_faces: faces.len(),
             face_alive: vec![true; faces.len()],
@@ -248,7 +251,8 @@ impl Simplifier {
             cos_max_turn: f64::from(options.max_normal_turn_deg).to_radians().cos(),
             min_quality: f64::from(options.min_quality),
             min_area2: 1e-14 * diagonal * diagonal,
-        }
+        };
+        (simplifier, edges)
     }
 
     /// The vertices sharing a live face with `v` (sorted, without `v`).
@@ -417,10 +421,10 @@ pub struct Simplified {
 /// Errors: options out of range (see [`SimplifyOptions`]).
 pub fn simplify_keeping(mesh: &Mesh, options: &SimplifyOptions, keep: &[bool]) -> Result<Simplified> {
     options.check()?;
-    let mut s = Simplifier::new(mesh, options, keep);
+    let (mut s, edges) = Simplifier::new(mesh, options, keep);
     let tolerance = f64::from(options.tolerance);
     let mut heap = BinaryHeap::new();
-    for [a, b] in mesh.edges() {
+    for [a, b] in edges {
         s.push(&mut heap, a, b);
     }
     let mut collapses = 0;

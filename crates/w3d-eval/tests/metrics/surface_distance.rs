@@ -9,6 +9,7 @@ use w3d_core::{Mesh, load_mesh};
 use w3d_eval::{
     MAX_SAMPLES, MeshDistance, SurfaceComparison, closest_point_on_triangle, sample_surface, surface_chamfer,
 };
+use w3d_remesh::icosphere;
 
 /// SplitMix64: a small seeded generator for the test inputs.
 struct Rng(u64);
@@ -39,68 +40,6 @@ fn spot() -> Mesh {
     let mut mesh = load_mesh(path).unwrap();
     mesh.normalize_unit_cube();
     mesh
-}
-
-/// A closed sphere of radius `r`: an icosahedron subdivided `levels` times, every vertex
-/// projected onto the sphere.
-fn icosphere(levels: u32, r: f64) -> Mesh {
-    let g = (1.0 + 5f64.sqrt()) / 2.0;
-    let mut p: Vec<DVec3> = [
-        [-1.0, g, 0.0],
-        [1.0, g, 0.0],
-        [-1.0, -g, 0.0],
-        [1.0, -g, 0.0],
-        [0.0, -1.0, g],
-        [0.0, 1.0, g],
-        [0.0, -1.0, -g],
-        [0.0, 1.0, -g],
-        [g, 0.0, -1.0],
-        [g, 0.0, 1.0],
-        [-g, 0.0, -1.0],
-        [-g, 0.0, 1.0],
-    ]
-    .iter()
-    .map(|v| DVec3::from(*v).normalize())
-    .collect();
-    let mut t: Vec<[u32; 3]> = vec![
-        [0, 11, 5],
-        [0, 5, 1],
-        [0, 1, 7],
-        [0, 7, 10],
-        [0, 10, 11],
-        [1, 5, 9],
-        [5, 11, 4],
-        [11, 10, 2],
-        [10, 7, 6],
-        [7, 1, 8],
-        [3, 9, 4],
-        [3, 4, 2],
-        [3, 2, 6],
-        [3, 6, 8],
-        [3, 8, 9],
-        [4, 9, 5],
-        [2, 4, 11],
-        [6, 2, 10],
-        [8, 6, 7],
-        [9, 8, 1],
-    ];
-    for _ in 0..levels {
-        let mut cache = std::collections::HashMap::new();
-        let mut mid = |a: u32, b: u32, p: &mut Vec<DVec3>| -> u32 {
-            *cache.entry((a.min(b), a.max(b))).or_insert_with(|| {
-                p.push((p[a as usize] + p[b as usize]).normalize());
-                (p.len() - 1) as u32
-            })
-        };
-        t = t
-            .iter()
-            .flat_map(|&[a, b, c]| {
-                let (ab, bc, ca) = (mid(a, b, &mut p), mid(b, c, &mut p), mid(c, a, &mut p));
-                [[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]
-            })
-            .collect();
-    }
-    Mesh::new(p.iter().map(|v| (*v * r).as_vec3().to_array()).collect(), t).unwrap()
 }
 
 fn segment_distance(p: DVec3, a: DVec3, b: DVec3) -> f64 {
@@ -277,8 +216,8 @@ fn a_mesh_against_itself_scores_zero_without_the_sampling_floor() {
 #[test]
 fn a_sphere_against_the_sphere_one_percent_larger_scores_one_percent_of_the_radius() {
     let r = 0.5;
-    let gt = icosphere(5, r);
-    let pred = icosphere(5, 1.01 * r);
+    let gt = icosphere(5, r as f32).unwrap();
+    let pred = icosphere(5, (1.01 * r) as f32).unwrap();
     let d = surface_chamfer(&pred, &gt, 50_000, 7).unwrap();
     // The facets are parallel, 0.01·r·cos(facet angle) apart (cos ≥ 0.9998 at 20 480 faces).
     for v in [d.chamfer, d.pred_to_gt, d.gt_to_pred] {
@@ -298,7 +237,7 @@ fn a_sphere_against_the_sphere_one_percent_larger_scores_one_percent_of_the_radi
 
 #[test]
 fn zero_samples_and_zero_area_meshes_are_errors() {
-    let sphere = icosphere(1, 1.0);
+    let sphere = icosphere(1, 1.0).unwrap();
     let err = surface_chamfer(&sphere, &sphere, 0, 0).unwrap_err().to_string();
     assert!(err.contains("samples") && err.contains("got 0"), "{err}");
     let err = surface_chamfer(&sphere, &sphere, MAX_SAMPLES + 1, 0).unwrap_err().to_string();
