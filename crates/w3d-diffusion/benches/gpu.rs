@@ -124,6 +124,13 @@ struct Phase {
     reserved_peak: Option<u64>,
 }
 
+/// Records a phase, and names it on stderr at once, so a run stopped part-way still says what
+/// it measured.
+fn push(phases: &mut Vec<Phase>, phase: Phase) {
+    eprintln!("{}: {:.2} s", phase.name, phase.seconds);
+    phases.push(phase);
+}
+
 fn main() {
     if let Err(e) = run() {
         eprintln!("error: {e}");
@@ -147,7 +154,10 @@ fn run() -> Result<(), String> {
     sync(&device)?;
     note(&mut peak);
     let unet_params = pipeline.unet().num_params();
-    phases.push(Phase { name: "build / load models".into(), seconds: t.elapsed().as_secs_f64(), reserved_peak: peak });
+    push(
+        &mut phases,
+        Phase { name: "build / load models".into(), seconds: t.elapsed().as_secs_f64(), reserved_peak: peak },
+    );
     let [_, c, h, w] = pipeline.noise_shape();
     eprintln!(
         "model: {what}, MV UNet {:.1} M parameters, latents 12 x {c} x {h} x {w}, views {}²",
@@ -163,11 +173,10 @@ fn run() -> Result<(), String> {
     let cond = pipeline.condition(&image, &device).map_err(|e| e.to_string())?;
     sync(&device)?;
     note(&mut peak);
-    phases.push(Phase {
-        name: "condition (CLIP + VAE encode)".into(),
-        seconds: t.elapsed().as_secs_f64(),
-        reserved_peak: peak,
-    });
+    push(
+        &mut phases,
+        Phase { name: "condition (CLIP + VAE encode)".into(), seconds: t.elapsed().as_secs_f64(), reserved_peak: peak },
+    );
 
     let one_step = SampleOptions { steps: 1, ..SampleOptions::default() };
     for name in ["first guided step (kernel compilation included)", "one guided step (24 UNet images)"] {
@@ -177,7 +186,7 @@ fn run() -> Result<(), String> {
             pipeline.sample_from(noise, &cond, &one_step, &mut |_, _| note(&mut peak)).map_err(|e| e.to_string())?;
         let _ = x.into_data();
         note(&mut peak);
-        phases.push(Phase { name: name.into(), seconds: t.elapsed().as_secs_f64(), reserved_peak: peak });
+        push(&mut phases, Phase { name: name.into(), seconds: t.elapsed().as_secs_f64(), reserved_peak: peak });
     }
 
     for &(sampler, steps) in &args.runs {
@@ -198,11 +207,14 @@ fn run() -> Result<(), String> {
         if !finite {
             return Err(format!("{label} {steps} steps produced non-finite views"));
         }
-        phases.push(Phase {
-            name: format!("generation: {steps} {label} steps + decode of 12 views"),
-            seconds,
-            reserved_peak: peak,
-        });
+        push(
+            &mut phases,
+            Phase {
+                name: format!("generation: {steps} {label} steps + decode of 12 views"),
+                seconds,
+                reserved_peak: peak,
+            },
+        );
     }
 
     let gib = |b: u64| b as f64 / (1u64 << 30) as f64;

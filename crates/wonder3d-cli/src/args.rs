@@ -68,6 +68,17 @@ pub enum DeviceArg {
     Wgpu,
 }
 
+#[cfg(feature = "diffusion")]
+impl DeviceArg {
+    /// The library's name for this device.
+    pub fn compute_device(self) -> wonder3d::ComputeDevice {
+        match self {
+            DeviceArg::Cpu => wonder3d::ComputeDevice::Cpu,
+            DeviceArg::Wgpu => wonder3d::ComputeDevice::Wgpu,
+        }
+    }
+}
+
 /// `--scheduler`: the sampling algorithm of generation.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum SchedulerArg {

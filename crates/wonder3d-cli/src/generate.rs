@@ -92,11 +92,7 @@ mod with_model {
     /// device opens first, so a missing GPU backend is named before the weights are read; a
     /// GPU is named on stderr (with a warning when it is a software adapter).
     pub fn load(weights: &std::path::Path, args: &SamplingArgs) -> Result<Generator> {
-        let device = match args.device {
-            DeviceArg::Cpu => ComputeDevice::Cpu,
-            DeviceArg::Wgpu => ComputeDevice::Wgpu,
-        }
-        .open()?;
+        let device = args.device.compute_device().open()?;
         if device.kind != ComputeDevice::Cpu {
             eprintln!("device: {}", device.description);
         }

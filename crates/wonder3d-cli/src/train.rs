@@ -7,7 +7,7 @@ use std::path::PathBuf;
 
 use wonder3d::Result;
 
-use crate::args::MinSnrGamma;
+use crate::args::{DeviceArg, MinSnrGamma};
 
 /// `--background` of `wonder3d train`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -84,6 +84,10 @@ pub struct TrainArgs {
     /// Continue the run in `--out` from its checkpoint (bit-identical to an uninterrupted run).
     #[arg(long)]
     pub resume: bool,
+    /// Where the model trains: `cpu` (all cores) or `wgpu` (the GPU; a build with the `wgpu`
+    /// feature, docs/gpu.md). The data is encoded on the same device.
+    #[arg(long, value_enum, default_value_t = DeviceArg::Cpu)]
+    pub device: DeviceArg,
     /// No progress bar.
     #[arg(long)]
     pub quiet: bool,
@@ -94,9 +98,9 @@ pub struct TrainArgs {
 pub fn run(args: &TrainArgs) -> Result<()> {
     use indicatif::{ProgressBar, ProgressStyle};
     use wonder3d::Error;
+    use wonder3d::diffusion::MultiViewPipeline;
     use wonder3d::diffusion::train::{RunEvent, RunOptions, Stage, TrainOptions, run_training};
     use wonder3d::diffusion::training_set::TrainingSet;
-    use wonder3d::diffusion::{MultiViewPipeline, default_device};
 
     let stage = Stage::from_number(args.stage)?;
     // Everything cheap is checked before the model loads: the set's index, the output folder.
@@ -118,8 +122,11 @@ pub fn run(args: &TrainArgs) -> Result<()> {
             ),
         ));
     }
-    let device = default_device();
-    let mut pipeline = MultiViewPipeline::from_dir(&args.init, &device)?;
+    let opened = args.device.compute_device().open()?;
+    if opened.kind != wonder3d::ComputeDevice::Cpu {
+        eprintln!("device: {}", opened.description);
+    }
+    let mut pipeline = MultiViewPipeline::from_dir(&args.init, &opened.device)?;
     if stage == Stage::CrossDomain && !pipeline.unet().config().cd_attention_mid && !args.resume {
         eprintln!(
             "note: {} has no cross-domain attention; adding it (zero-initialised output) for stage 3",

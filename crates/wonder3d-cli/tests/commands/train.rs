@@ -93,3 +93,39 @@ fn train_refuses_bad_input_before_loading_the_model() {
     let out = wonder3d(&["train", "--stage", "1", "--data", "x", "--init", "y", "--out", "z", "--lr", "0"]);
     assert!(!out.status.success() && stderr(&out).contains("learning rate"), "{}", stderr(&out));
 }
+
+/// `--device wgpu` in a build without the `wgpu` feature names the feature before the model
+/// loads, and leaves no run behind.
+#[test]
+#[cfg(not(feature = "wgpu"))]
+fn training_on_a_gpu_needs_the_wgpu_build() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    let spot = concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets/spot.obj");
+    let out =
+        wonder3d(&["dataset", spot, "--out", data.to_str().unwrap(), "--samples", "1", "--size", "32", "--quiet"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let run = dir.path().join("run");
+    let missing = dir.path().join("no-model");
+    for (init, device, expected) in
+        [(missing.to_str().unwrap().to_string(), "wgpu", "`wgpu` feature"), (tiny_weights(), "tpu", "cpu, wgpu")]
+    {
+        let out = wonder3d(&[
+            "train",
+            "--stage",
+            "3",
+            "--data",
+            data.to_str().unwrap(),
+            "--init",
+            &init,
+            "--out",
+            run.to_str().unwrap(),
+            "--device",
+            device,
+            "--quiet",
+        ]);
+        let err = stderr(&out);
+        assert!(!out.status.success() && err.contains(expected) && !err.contains("no-model"), "{err}");
+        assert!(!run.exists(), "nothing is written");
+    }
+}
