@@ -13,7 +13,8 @@
 //! - `cargo xtask faces-chart [--meshes a,b] [--size 512]`: `docs/faces_accuracy.svg` and
 //!   `target/bench/faces.json`, triangles against Chamfer distance of the refinement's adaptive
 //!   mesh and of uniform-edge-length meshes fitted the same way.
-//! - `cargo xtask refine-table [--meshes a,b] [--all] [--size 512]`: the refinement loop with
+//! - `cargo xtask refine-table [--meshes a,b] [--all] [--size 512] [--edges MIN,MAX]
+//!   [--simplify TOL|off] [--curvature TOL|off]`: the refinement loop with
 //!   the oracle and identity enhancers on noisy oracle views, `target/bench/refine.json` and the
 //!   refinement table of `docs/accuracy.md`; `--all`: the NaN / crossing sweep over every
 //!   closed mesh, the teapot and the teacups (`target/bench/refine_all_<size>.json`).
@@ -181,6 +182,10 @@ enum Task {
         /// `w3d_recon::RefineOptions`'s).
         #[arg(long)]
         simplify: Option<String>,
+        /// Curvature tolerance of the mesh refinement's edge lengths, or `off` (default:
+        /// `w3d_recon::RefineOptions`'s).
+        #[arg(long)]
+        curvature: Option<String>,
     },
     /// Regenerate committed test fixtures with the Python peer tools.
     Fixtures {
@@ -726,8 +731,8 @@ fn main() -> ExitCode {
         }
         Task::ShipSmall { model } => train_small::ship(&model),
         Task::Bench { suite, criterion_args } => bench(&suite, &criterion_args),
-        Task::RefineTable { meshes, all, rig, size, laplacian, lr, edges, simplify } => {
-            refine_table::mesh_options(laplacian, lr, edges.as_deref(), simplify.as_deref())
+        Task::RefineTable { meshes, all, rig, size, laplacian, lr, edges, simplify, curvature } => {
+            refine_table::mesh_options(laplacian, lr, edges.as_deref(), simplify.as_deref(), curvature.as_deref())
                 .and_then(|mesh| refine_table::run(meshes.as_deref(), all, rig.as_deref(), size, mesh))
         }
     };

@@ -92,6 +92,7 @@ pub(crate) fn mesh_options(
     lr: Option<f32>,
     edges: Option<&[f32]>,
     simplify: Option<&str>,
+    curvature: Option<&str>,
 ) -> Result<wonder3d::recon::RefineOptions, String> {
     let mut mesh_options = wonder3d::recon::RefineOptions::default();
     if let Some(w) = laplacian {
@@ -113,6 +114,14 @@ pub(crate) fn mesh_options(
             let t: f32 = t.parse().map_err(|_| format!("--simplify {t}: a tolerance in world units, or `off`"))?;
             mesh_options = mesh_options.with_simplify_tolerance(Some(t));
         }
+    }
+    match curvature {
+        None => {}
+        Some("off") => mesh_options = mesh_options.with_curvature_tolerance(None),
+        Some(t) => match t.parse::<f32>() {
+            Ok(t) if t > 0.0 && t.is_finite() => mesh_options = mesh_options.with_curvature_tolerance(Some(t)),
+            _ => return Err(format!("--curvature {t}: a tolerance > 0 in world units, or `off`")),
+        },
     }
     Ok(mesh_options)
 }
@@ -172,7 +181,8 @@ pub(crate) fn run(
 /// The mesh refinement settings a report records.
 fn mesh_refinement_json(o: &wonder3d::recon::RefineOptions) -> Value {
     json!({ "lr": o.lr, "laplacian_weight": o.laplacian_weight, "steps": o.steps,
-            "edge_len_lims": o.edge_len_lims, "simplify_tolerance": o.simplify_tolerance })
+            "edge_len_lims": o.edge_len_lims, "simplify_tolerance": o.simplify_tolerance,
+            "curvature_tolerance": o.curvature_tolerance })
 }
 
 fn write(path: &Path, text: &str) -> Result<(), String> {

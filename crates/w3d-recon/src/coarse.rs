@@ -77,6 +77,19 @@ pub struct CoarseOptions {
     /// silhouette, so the refinement stage ([`crate::refine_mesh`]) leaves a band of 2 pixels
     /// out of the normal loss, as the reference does. The mask loss uses the masks as they are.
     pub normal_mask_erosion: u32,
+    /// Not in the reference: a shape-following bound on the remesher's target edge lengths
+    /// (`w3d_remesh::RemeshOptions::curvature_tolerance`, world units): edges where the
+    /// mesh is curved are cut short enough that their chords stay within about this of the
+    /// surface. `None` (the default) leaves the sizing to the speed controller alone, as in
+    /// the coarse stage, whose sphere start says nothing about the object's curvature; the
+    /// refinement ([`crate::RefineOptions::curvature_tolerance`]) sets it.
+    pub curvature_tolerance: Option<f32>,
+    /// Start every vertex's target edge length at the mean length of its edges in the start
+    /// mesh (clamped to `edge_len_lims`) instead of at the upper limit (`false` by default).
+    /// For a start mesh that already fits the views (the refinement): starting at the upper
+    /// limit, the first remesh collapses every shorter edge at once, and a thin part one or
+    /// two edges across (the plane's wings) is lost before the fit can hold it.
+    pub start_at_mesh_edge_lengths: bool,
 }
 
 impl Default for CoarseOptions {
@@ -94,6 +107,8 @@ impl Default for CoarseOptions {
             seed: 0,
             remesh_repairs: false,
             normal_mask_erosion: 0,
+            curvature_tolerance: None,
+            start_at_mesh_edge_lengths: false,
         }
     }
 }
@@ -184,6 +199,21 @@ impl CoarseOptions {
         self.normal_mask_erosion = value;
         self
     }
+
+    /// These options with [`curvature_tolerance`](Self::curvature_tolerance) set to `value`.
+    #[must_use]
+    pub fn with_curvature_tolerance(mut self, value: Option<f32>) -> Self {
+        self.curvature_tolerance = value;
+        self
+    }
+
+    /// These options with [`start_at_mesh_edge_lengths`](Self::start_at_mesh_edge_lengths)
+    /// set to `value`.
+    #[must_use]
+    pub fn with_start_at_mesh_edge_lengths(mut self, value: bool) -> Self {
+        self.start_at_mesh_edge_lengths = value;
+        self
+    }
 }
 
 /// What [`reconstruct_coarse`] did.
@@ -270,7 +300,11 @@ pub fn reconstruct_coarse(
         .with_edge_len_lims(options.edge_len_lims)
         .with_laplacian_weight(options.laplacian_weight)
         .with_seed(options.seed);
+    let remesh = remesh.with_curvature_tolerance(options.curvature_tolerance);
     let mut opt = MeshOptimizer::from_mesh(&init.clone().without_attributes(), remesh)?;
+    if options.start_at_mesh_edge_lengths {
+        opt.set_target_edge_lengths(&mean_edge_lengths(init, options.edge_len_lims))?;
+    }
     if options.min_edge_pixels > 0.0 {
         let cameras: Vec<Camera> = views.rig().cameras().copied().collect();
         let scale = options.min_edge_pixels / size as f32;
@@ -442,9 +476,42 @@ fn eroded_mask(mask: &[f32], size: usize, radius: usize) -> Vec<bool> {
     out
 }
 
+/// Per vertex of `mesh`, the mean length of its edges clamped to `(lo, hi)` (`lo` for a
+/// vertex without edges).
+fn mean_edge_lengths(mesh: &Mesh, (lo, hi): (f32, f32)) -> Vec<f32> {
+    let mut sum = vec![0.0f32; mesh.vertex_count()];
+    let mut count = vec![0u32; mesh.vertex_count()];
+    let p = |v: u32| Vec3::from(mesh.positions()[v as usize]);
+    for [a, b] in mesh.edges() {
+        let length = p(a).distance(p(b));
+        for v in [a, b] {
+            sum[v as usize] += length;
+            count[v as usize] += 1;
+        }
+    }
+    sum.iter().zip(&count).map(|(s, &c)| if c == 0 { lo } else { (s / c as f32).clamp(lo, hi) }).collect()
+}
+
 #[cfg(test)]
 mod tests {
-    use super::eroded_mask;
+    use super::{eroded_mask, mean_edge_lengths};
+
+    /// A square split into two triangles (sides 1, diagonal √2): each corner's mean over its
+    /// edges, then the limits.
+    #[test]
+    fn mean_edge_lengths_average_each_vertex_edges_within_the_limits() {
+        let square = w3d_core::Mesh::new(
+            vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]],
+            vec![[0, 1, 2], [0, 2, 3]],
+        )
+        .unwrap();
+        let diagonal = (2.0 + std::f32::consts::SQRT_2) / 3.0;
+        let lengths = mean_edge_lengths(&square, (0.0, 10.0));
+        for (got, want) in lengths.iter().zip([diagonal, 1.0, diagonal, 1.0]) {
+            assert!((got - want).abs() < 1e-6, "{lengths:?}");
+        }
+        assert_eq!(mean_edge_lengths(&square, (1.05, 1.1)), vec![1.1, 1.05, 1.1, 1.05]);
+    }
 
     /// A 5×4 block in a 9×9 mask: eroded by 1 it keeps the 3×2 core; by 2, nothing; the
     /// image border does not erode (pixels beyond it are not counted).

@@ -8,17 +8,20 @@
 //! then the coarse stage's clean-up ([`crate::untangle`] and [`crate::polish`]), so the result
 //! is closed and free of crossing triangles like the coarse result. Last, a quadric
 //! simplification ([`w3d_remesh::simplify`]) removes the triangles the shape does not need:
-//! the fit's edge lengths follow how far its vertices still move, not the shape, and leave
-//! flat and gently curved parts as finely cut as detailed ones.
+//! the fit's edges are at most 0.03 long, finer than a flat part needs.
 //!
 //! Defaults (`docs/accuracy.md`, "Refinement", has the measurements): 100 steps and the
-//! learning rate decayed by 0.99 per step as in the reference, target edge lengths between
-//! 0.01 and 0.016 (bounded below by two pixels of the views, as in the coarse stage), and the
+//! learning rate decayed by 0.99 per step as in the reference; target edge lengths between
+//! 0.01 and 0.03 (bounded below by two pixels of the views, as in the coarse stage) that
+//! follow the shape: cut short where the surface is curved, so that an edge's chord stays
+//! within 0.002 of it ([`RefineOptions::curvature_tolerance`]), long where it is flat; and the
 //! normal loss kept 2 pixels inside the silhouette (a 5×5 erosion of the target masks, as in
 //! the reference), where a generative model's normals are least reliable. The reference's
 //! edge lengths, 0.005–0.008, gave spot 105–125 k triangles and 42–46 s per iteration at 512²
-//! on 2 cores, with a worse Chamfer distance (0.0030–0.0031 after two oracle iterations,
-//! against 0.0028–0.0030) and novel-view PSNR (30.3–30.4 dB against 31.0–31.2).
+//! on 2 cores, with a worse Chamfer distance and novel-view PSNR; edges sized by the
+//! remesher's speed alone (0.01–0.016) left spot's smooth flanks as finely cut as its ears,
+//! and the fit of so many small edges to smooth-shaded views drifted (+5–7 % CD with an
+//! enhancer that changes nothing, against at most +4.3 % now).
 //!
 //! ```
 //! use w3d_core::ViewRig;
@@ -66,6 +69,13 @@ pub struct RefineOptions {
     /// Smallest and largest target edge length (see the module documentation for why not
     /// the reference's 0.005–0.008).
     pub edge_len_lims: (f32, f32),
+    /// Curvature bound on the target edge lengths, in world units
+    /// ([`CoarseOptions::curvature_tolerance`]): where the surface is curved, edges are cut
+    /// short enough that their chords stay within about this of it, down to
+    /// `edge_len_lims.0`; elsewhere they may grow to `edge_len_lims.1`. `None` leaves the
+    /// sizing to the remesher's speed controller, which shortens the edges wherever the
+    /// vertices have stopped moving, whatever the shape.
+    pub curvature_tolerance: Option<f32>,
     /// Weight of the Laplacian regulariser inside the remeshing optimiser's update.
     pub laplacian_weight: f32,
     /// Pixels the target masks are eroded by for the normal loss (see
@@ -95,7 +105,8 @@ impl Default for RefineOptions {
             steps: 100,
             lr: 0.03,
             lr_decay: 0.99,
-            edge_len_lims: (0.01, 0.016),
+            edge_len_lims: (0.01, 0.03),
+            curvature_tolerance: Some(0.002),
             laplacian_weight: CoarseOptions::default().laplacian_weight,
             normal_mask_erosion: 2,
             untangle_rounds: 400,
@@ -133,6 +144,13 @@ impl RefineOptions {
     #[must_use]
     pub fn with_edge_len_lims(mut self, value: (f32, f32)) -> Self {
         self.edge_len_lims = value;
+        self
+    }
+
+    /// These options with [`curvature_tolerance`](Self::curvature_tolerance) set to `value`.
+    #[must_use]
+    pub fn with_curvature_tolerance(mut self, value: Option<f32>) -> Self {
+        self.curvature_tolerance = value;
         self
     }
 
@@ -185,6 +203,8 @@ impl RefineOptions {
             .with_lr(self.lr)
             .with_lr_decay(self.lr_decay)
             .with_edge_len_lims(self.edge_len_lims)
+            .with_curvature_tolerance(self.curvature_tolerance)
+            .with_start_at_mesh_edge_lengths(true)
             .with_laplacian_weight(self.laplacian_weight)
             .with_normal_mask_erosion(self.normal_mask_erosion)
             .with_seed(self.seed)

@@ -219,6 +219,16 @@ impl MeshOptimizer {
             }
         }
 
+        // With a curvature tolerance, a vertex moves by at most `lr` times twice its capped
+        // edge length (`RemeshOptions::curvature_tolerance`).
+        let step_lengths: Vec<f32> = match o.curvature_tolerance {
+            Some(tol) => curvature_length_caps(&s.positions, &self.triangles, &self.edges, tol)
+                .iter()
+                .zip(&s.ref_len)
+                .map(|(cap, &len)| len.min((CURVATURE_STEP_FACTOR * cap).max(o.edge_len_lims.0)))
+                .collect(),
+            None => Vec::new(),
+        };
         let (a1, b1) = lerp_unbiased_weights(o.betas[0], t);
         let (a2, b2) = lerp_unbiased_weights(o.betas[1], t);
         let (a3, b3) = lerp_unbiased_weights(o.betas[2], t);
@@ -245,7 +255,7 @@ impl MeshOptimizer {
             s.nu[v] = if o.betas[2] != 0.0 { s.nu[v] * a3 + speed * b3 } else { speed };
             s.m1[v] = m1;
             s.m2[v] = m2;
-            let scale = lr * s.ref_len[v];
+            let scale = lr * step_lengths.get(v).copied().unwrap_or(s.ref_len[v]);
             s.positions[v] = std::array::from_fn(|k| x[k] - scale * vel[k]);
         }
 
@@ -285,8 +295,15 @@ impl MeshOptimizer {
     /// Remeshes now, whatever the step count.
     pub fn remesh_now(&mut self) -> RemeshStats {
         let tol = self.options.edge_len_tol;
-        let min_len: Vec<f32> = self.state.ref_len.iter().map(|&r| r * (1.0 - tol)).collect();
-        let max_len: Vec<f32> = self.state.ref_len.iter().map(|&r| r * (1.0 + tol)).collect();
+        let caps = match self.options.curvature_tolerance {
+            Some(tol) => curvature_length_caps(&self.state.positions, &self.triangles, &self.edges, tol),
+            None => Vec::new(),
+        };
+        let lo = self.options.edge_len_lims.0;
+        let target: Vec<f32> =
+            self.state.ref_len.iter().enumerate().map(|(v, &r)| caps.get(v).map_or(r, |c| r.min(c.max(lo)))).collect();
+        let min_len: Vec<f32> = target.iter().map(|&r| r * (1.0 - tol)).collect();
+        let max_len: Vec<f32> = target.iter().map(|&r| r * (1.0 + tol)).collect();
         let seed = self.options.seed ^ self.remeshes.wrapping_mul(0x9E37_79B9_7F4A_7C15);
         self.remeshes += 1;
         let triangles = std::mem::take(&mut self.triangles);
@@ -436,4 +453,49 @@ impl MeshOptimizer {
         }
         Ok(())
     }
+}
+
+/// How far a vertex whose target edge length the curvature caps may still move per step, in
+/// capped edge lengths (times the learning rate): see `RemeshOptions::curvature_tolerance`.
+const CURVATURE_STEP_FACTOR: f32 = 2.0;
+
+/// Per-vertex caps `√(8 · tol / κ)` on the target edge length, `κ` the largest normal
+/// curvature of the mesh at the vertex: over its edges `2 |n · e| / |e|²` (the circle through
+/// both ends tangent to the vertex's area-weighted normal), averaged with the same value of
+/// its neighbours so that one noisy edge does not decide. An edge of that length on a surface
+/// of curvature `κ` departs from it by about `tol` at its middle (the sagitta `κ l² / 8`).
+fn curvature_length_caps(positions: &[[f32; 3]], triangles: &[[u32; 3]], edges: &[[u32; 2]], tol: f32) -> Vec<f32> {
+    use glam::Vec3;
+    let n = positions.len();
+    let p = |v: u32| Vec3::from(positions[v as usize]);
+    let mut normals = vec![Vec3::ZERO; n];
+    for &[a, b, c] in triangles {
+        let area_normal = (p(b) - p(a)).cross(p(c) - p(a));
+        for v in [a, b, c] {
+            normals[v as usize] += area_normal;
+        }
+    }
+    for normal in &mut normals {
+        *normal = normal.normalize_or_zero();
+    }
+    let mut curvature = vec![0.0f32; n];
+    for &[a, b] in edges {
+        let e = p(b) - p(a);
+        let len2 = e.length_squared();
+        if len2 <= 0.0 {
+            continue;
+        }
+        let (ka, kb) = (2.0 * normals[a as usize].dot(e).abs() / len2, 2.0 * normals[b as usize].dot(e).abs() / len2);
+        curvature[a as usize] = curvature[a as usize].max(ka);
+        curvature[b as usize] = curvature[b as usize].max(kb);
+    }
+    let mut sum = curvature.clone();
+    let mut count = vec![1u32; n];
+    for &[a, b] in edges {
+        sum[a as usize] += curvature[b as usize];
+        sum[b as usize] += curvature[a as usize];
+        count[a as usize] += 1;
+        count[b as usize] += 1;
+    }
+    sum.iter().zip(&count).map(|(k, c)| (8.0 * tol / (k / *c as f32).max(1e-12)).sqrt()).collect()
 }

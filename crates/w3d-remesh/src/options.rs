@@ -81,6 +81,18 @@ pub struct RemeshOptions {
     /// (300 remeshes): 2.9 floor passes per remesh on average, and no remesh left an edge
     /// below the limit; with 4 passes, 44 remeshes left up to 5 such edges.
     pub edge_floor_passes: u32,
+    /// Not in the reference: a shape-following upper bound on the edge lengths. With
+    /// `Some(tol)` (mesh units), every remesh cuts the edges at a vertex to at most
+    /// `√(8 · tol / κ)` (but not below `edge_len_lims.0`), `κ` the largest normal curvature
+    /// of the current mesh there, so that an edge's chord departs from the surface by about
+    /// `tol`: flat and gently curved parts keep the lengths the speed controller gives them
+    /// (up to `edge_len_lims.1`), curved ones (creases, thin rims) get shorter edges. A
+    /// vertex's step stays that of its controller length, up to twice its capped length:
+    /// bounding it by the capped length itself slowed the fit wherever a still-noisy mesh
+    /// looks curved, and leaving it unbounded let thin parts wander (measured in the
+    /// refinement, `docs/accuracy.md`). `None`: the speed controller alone, which shortens
+    /// edges where vertices have stopped moving, wherever that is (the default).
+    pub curvature_tolerance: Option<f32>,
 }
 
 impl Default for RemeshOptions {
@@ -107,6 +119,7 @@ impl Default for RemeshOptions {
             fold_relaxation_rounds: 10,
             collapse_rank_rounds: 3,
             edge_floor_passes: 8,
+            curvature_tolerance: None,
         }
     }
 }
@@ -260,6 +273,13 @@ impl RemeshOptions {
         self.edge_floor_passes = value;
         self
     }
+
+    /// These options with [`curvature_tolerance`](Self::curvature_tolerance) set to `value`.
+    #[must_use]
+    pub fn with_curvature_tolerance(mut self, value: Option<f32>) -> Self {
+        self.curvature_tolerance = value;
+        self
+    }
 }
 
 impl RemeshOptions {
@@ -301,6 +321,12 @@ impl RemeshOptions {
         check(positive(self.ramp), "ramp", "a finite number > 0", self.ramp.to_string())?;
         check(positive(self.grad_lim), "grad_lim", "a finite number > 0", self.grad_lim.to_string())?;
         check(self.remesh_interval >= 1, "remesh_interval", "at least 1", self.remesh_interval.to_string())?;
+        check(
+            self.curvature_tolerance.is_none_or(positive),
+            "curvature_tolerance",
+            "None or a finite number > 0",
+            format!("{:?}", self.curvature_tolerance),
+        )?;
         check(
             self.area_ratio.is_finite() && self.area_ratio >= 0.0,
             "area_ratio",

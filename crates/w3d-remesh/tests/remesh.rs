@@ -4,6 +4,8 @@
 #[path = "common/mod.rs"]
 mod common;
 
+#[path = "remesh/curvature.rs"]
+mod curvature;
 #[path = "remesh/golden.rs"]
 mod golden;
 #[path = "remesh/invariants.rs"]
