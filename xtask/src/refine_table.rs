@@ -282,6 +282,8 @@ fn checked_refine(
         let iterations = &out.report.iterations;
         row["untangle_left"] = json!(iterations.iter().map(|i| i.mesh.untangle.after).collect::<Vec<_>>());
         row["reseeds"] = json!(iterations.iter().map(|i| i.mesh.reseeds).collect::<Vec<_>>());
+        row["curvature_bound_dropped"] =
+            json!(iterations.iter().map(|i| i.mesh.curvature_bound_dropped).collect::<Vec<_>>());
         Ok::<_, String>(row)
     }));
     let mut row = match result {
