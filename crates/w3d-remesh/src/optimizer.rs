@@ -164,6 +164,8 @@ impl MeshOptimizer {
     /// optional spatial smoothing of the moments, the Laplacian term
     /// `laplacian_weight · nu · (x − mean of 1-ring)`, clipping to `± grad_lim·|m1|`,
     /// bias-corrected moment updates, the move `x −= lr_t · ref_len · m1 / (√m2 + 1e-8)`
+    /// (with [`RemeshOptions::curvature_tolerance`], `ref_len` at most twice the vertex's
+    /// curvature cap)
     /// and, every `remesh_interval` steps, the edge-length controller
     /// `ref_len ·= 1 + (nu − nu_ref)·gain`, clamped to `edge_len_lims` and bounded below by
     /// the minimum-length field if one is set.
@@ -292,7 +294,8 @@ impl MeshOptimizer {
         self.remesh_now()
     }
 
-    /// Remeshes now, whatever the step count.
+    /// Remeshes now, whatever the step count. With [`RemeshOptions::curvature_tolerance`],
+    /// each vertex's target length is first capped by the current mesh's curvature there.
     pub fn remesh_now(&mut self) -> RemeshStats {
         let tol = self.options.edge_len_tol;
         let caps = match self.options.curvature_tolerance {
