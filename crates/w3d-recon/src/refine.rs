@@ -253,8 +253,8 @@ pub fn refine_mesh(
 ) -> Result<(Mesh, RefineReport)> {
     let start = Instant::now();
     let fit_options = options.fit();
-    let (mut fitted, mut fit) = reconstruct_coarse(views, mesh, &fit_options, progress)?;
-    let (mut untangled, mut untangle_report) = untangle(&fitted, options.untangle_rounds)?;
+    let rounds = options.untangle_rounds;
+    let mut kept = fit_and_untangle(views, mesh, &fit_options, rounds, progress)?;
     // Untangling that ends with crossings left gets the fit again with the next remesher
     // seeds (at most `COARSE_RESEEDS` times), as `crate::reconstruct` does for the coarse
     // stage; the run with the fewest crossings left is kept. Unlike there, the reruns keep
@@ -263,13 +263,12 @@ pub fn refine_mesh(
     // refine-table --all --size 256`, 2026-12-04). Without reruns the teacup turned to open
     // towards the front (perspective rig) kept 2 crossing pairs after one identity iteration.
     let mut reseeds = 0;
-    while untangle_report.after > 0 && options.untangle_rounds > 0 && reseeds < COARSE_RESEEDS {
+    while kept.untangle.after > 0 && rounds > 0 && reseeds < COARSE_RESEEDS {
         reseeds += 1;
         let again_options = fit_options.with_seed(fit_options.seed.wrapping_add(reseeds as u64));
-        let (again, again_fit) = reconstruct_coarse(views, mesh, &again_options, progress)?;
-        let (again_untangled, again_untangle) = untangle(&again, options.untangle_rounds)?;
-        if again_untangle.after < untangle_report.after {
-            (fitted, fit, untangled, untangle_report) = (again, again_fit, again_untangled, again_untangle);
+        let again = fit_and_untangle(views, mesh, &again_options, rounds, progress)?;
+        if again.untangle.after < kept.untangle.after {
+            kept = again;
         }
     }
     // Last resort: the fit once more without the curvature bound, whose short edges on a
@@ -278,15 +277,14 @@ pub fn refine_mesh(
     // enhancer: 7 crossing pairs left, 2026-12-04); the speed controller's sizing left none on
     // every test mesh. Kept only if it leaves fewer crossings.
     let mut curvature_bound_dropped = false;
-    if untangle_report.after > 0 && options.untangle_rounds > 0 && fit_options.curvature_tolerance.is_some() {
-        let again_options = fit_options.with_curvature_tolerance(None);
-        let (again, again_fit) = reconstruct_coarse(views, mesh, &again_options, progress)?;
-        let (again_untangled, again_untangle) = untangle(&again, options.untangle_rounds)?;
-        if again_untangle.after < untangle_report.after {
-            (fitted, fit, untangled, untangle_report) = (again, again_fit, again_untangled, again_untangle);
+    if kept.untangle.after > 0 && rounds > 0 && fit_options.curvature_tolerance.is_some() {
+        let again = fit_and_untangle(views, mesh, &fit_options.with_curvature_tolerance(None), rounds, progress)?;
+        if again.untangle.after < kept.untangle.after {
+            kept = again;
             curvature_bound_dropped = true;
         }
     }
+    let FitRun { fitted, fit, untangled, untangle: untangle_report } = kept;
     let (polished, polish_report) = polish_moved(views, &fitted, &untangled, &fit_options, options.polish_steps)?;
     let (refined, simplify_report) = match options.simplify_tolerance {
         Some(tolerance) => simplify_without_crossings(polished, tolerance)?,
@@ -303,6 +301,26 @@ pub fn refine_mesh(
         seconds: start.elapsed().as_secs_f64(),
     };
     Ok((refined, report))
+}
+
+/// One fit of the views from the start mesh and its untangling (`rounds` at most).
+struct FitRun {
+    fitted: Mesh,
+    fit: CoarseReport,
+    untangled: Mesh,
+    untangle: UntangleReport,
+}
+
+fn fit_and_untangle(
+    views: &ViewSet,
+    mesh: &Mesh,
+    options: &CoarseOptions,
+    rounds: usize,
+    progress: &mut dyn FnMut(usize, usize, f32),
+) -> Result<FitRun> {
+    let (fitted, fit) = reconstruct_coarse(views, mesh, options, progress)?;
+    let (untangled, untangle) = untangle(&fitted, rounds)?;
+    Ok(FitRun { fitted, fit, untangled, untangle })
 }
 
 /// Simplifications that made triangles cross are redone at most this many times, each time

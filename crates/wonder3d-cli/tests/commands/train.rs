@@ -7,15 +7,20 @@ fn stderr(out: &std::process::Output) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
+/// `wonder3d dataset` of the bundled spot at the tiny model's 32² into `dir/data`.
+fn spot_dataset(dir: &std::path::Path, samples: &str) -> std::path::PathBuf {
+    let data = dir.join("data");
+    let spot = concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets/spot.obj");
+    let out =
+        wonder3d(&["dataset", spot, "--out", data.to_str().unwrap(), "--samples", samples, "--size", "32", "--quiet"]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    data
+}
+
 #[test]
 fn a_stage_runs_resumes_and_its_checkpoint_generates() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    let spot = concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets/spot.obj");
-    // The tiny model's images are 32².
-    let out =
-        wonder3d(&["dataset", spot, "--out", data.to_str().unwrap(), "--samples", "2", "--size", "32", "--quiet"]);
-    assert!(out.status.success(), "{}", stderr(&out));
+    let data = spot_dataset(dir.path(), "2");
     let run = dir.path().join("run");
     let train = |steps: &str, resume: bool| {
         let mut args = vec![
@@ -100,11 +105,7 @@ fn train_refuses_bad_input_before_loading_the_model() {
 #[cfg(not(feature = "wgpu"))]
 fn training_on_a_gpu_needs_the_wgpu_build() {
     let dir = tempfile::tempdir().unwrap();
-    let data = dir.path().join("data");
-    let spot = concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets/spot.obj");
-    let out =
-        wonder3d(&["dataset", spot, "--out", data.to_str().unwrap(), "--samples", "1", "--size", "32", "--quiet"]);
-    assert!(out.status.success(), "{}", stderr(&out));
+    let data = spot_dataset(dir.path(), "1");
     let run = dir.path().join("run");
     let missing = dir.path().join("no-model");
     for (init, device, expected) in
