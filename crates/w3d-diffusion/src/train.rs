@@ -1221,6 +1221,12 @@ pub struct VaeTrainOptions {
     /// either way; with few steps the mean trains much faster, since a fresh encoder's
     /// posterior is as wide as the prior and drowns the image in noise.
     pub sample_posterior: bool,
+    /// Train only the decoder (`post_quant_conv` and `decoder.*`) on the latents of the
+    /// frozen encoder. The encoder, the latent space and the scaling factor stay exactly as
+    /// they were, so a diffusion model trained on this VAE's latents keeps working while the
+    /// decoder learns to draw them more sharply. The KL term, which only shapes the encoder,
+    /// drops out of the loss.
+    pub decoder_only: bool,
     /// Seed of the batch and posterior-sample draws.
     pub seed: u64,
 }
@@ -1234,6 +1240,7 @@ impl Default for VaeTrainOptions {
             kl_weight: 1e-6,
             max_grad_norm: Some(1.0),
             sample_posterior: true,
+            decoder_only: false,
             seed: 0,
         }
     }
@@ -1264,6 +1271,12 @@ impl VaeTrainOptions {
         self
     }
 
+    /// Sets whether only the decoder trains ([`VaeTrainOptions::decoder_only`]).
+    pub fn with_decoder_only(mut self, decoder_only: bool) -> Self {
+        self.decoder_only = decoder_only;
+        self
+    }
+
     /// Sets whether a posterior sample (true) or the mean (false) is decoded.
     pub fn with_sample_posterior(mut self, sample: bool) -> Self {
         self.sample_posterior = sample;
@@ -1278,7 +1291,8 @@ impl VaeTrainOptions {
 /// `[-1, 1]` plus `kl_weight` × the mean KL divergence to N(0, I) is minimised with AdamW.
 /// Afterwards `scaling_factor` is set to 1 / the standard deviation of the latent means over
 /// `images`, so the diffusion model sees unit-variance latents (Stable Diffusion's 0.18215
-/// was found the same way). `on_step(step, loss)` reports each step.
+/// was found the same way). With [`VaeTrainOptions::decoder_only`] the encoder is frozen and
+/// the scaling factor kept. `on_step(step, loss)` reports each step.
 pub fn train_vae(
     vae: crate::Vae,
     images: &[w3d_core::Image],
@@ -1299,18 +1313,42 @@ pub fn train_vae(
         let t: Tensor<3> = Tensor::from_data(TensorData::new(image.data().to_vec(), [h, w, 3]), device);
         t.permute([2, 0, 1]).reshape([1, 3, h, w]) * 2.0 - 1.0
     };
+    // Decoder-only: the frozen encoder's moments of every image, computed once outside the
+    // autodiff graph (an encoder pass on tracked weights would grow a graph no backward
+    // pass consumes).
+    let frozen: Vec<(TensorData, TensorData)> = if options.decoder_only {
+        images
+            .iter()
+            .map(|image| {
+                let (mean, logvar) = vae.encode_moments(to_tensor(image, &device))?;
+                Ok((mean.into_data(), logvar.into_data()))
+            })
+            .collect::<Result<_, Error>>()?
+    } else {
+        Vec::new()
+    };
     let mut vae = vae.train();
-    let ids: HashSet<ParamId> = crate::weights::collect_named_ids(&vae).into_iter().collect();
+    let ids: HashSet<ParamId> = if options.decoder_only {
+        vae.decoder_param_ids().into_iter().collect()
+    } else {
+        crate::weights::collect_named_ids(&vae).into_iter().collect()
+    };
     let mut moments = HashMap::new();
     let mut rng = options.seed ^ 0xA076_1D64_78BD_642F;
     let mut next = move || splitmix64(&mut rng);
     let lr = options.learning_rate;
     let lr_of = |_: ParamId| lr;
     for step in 1..=options.steps {
-        let batch: Vec<Tensor<4>> =
-            (0..options.batch).map(|_| to_tensor(&images[(next() % images.len() as u64) as usize], &ad)).collect();
-        let x = Tensor::cat(batch, 0);
-        let (mean, logvar) = vae.encode_moments(x.clone())?;
+        let picks: Vec<usize> = (0..options.batch).map(|_| (next() % images.len() as u64) as usize).collect();
+        let x = Tensor::cat(picks.iter().map(|&i| to_tensor(&images[i], &ad)).collect(), 0);
+        let (mean, logvar) = if options.decoder_only {
+            let stack = |part: fn(&(TensorData, TensorData)) -> &TensorData| {
+                Tensor::cat(picks.iter().map(|&i| Tensor::<4>::from_data(part(&frozen[i]).clone(), &ad)).collect(), 0)
+            };
+            (stack(|m| &m.0), stack(|m| &m.1))
+        } else {
+            vae.encode_moments(x.clone())?
+        };
         let z = if options.sample_posterior {
             let eps = gaussian_noise(mean.dims(), next(), &ad);
             mean.clone() + (logvar.clone() * 0.5).exp() * eps
@@ -1320,8 +1358,12 @@ pub fn train_vae(
         let recon = vae.decode(z)?;
         let diff = recon - x;
         let mse = (diff.clone() * diff).mean();
-        let kl = ((mean.clone() * mean + logvar.clone().exp() - logvar - 1.0) * 0.5).mean();
-        let loss = mse + kl * options.kl_weight;
+        let loss = if options.decoder_only {
+            mse
+        } else {
+            let kl = ((mean.clone() * mean + logvar.clone().exp() - logvar - 1.0) * 0.5).mean();
+            mse + kl * options.kl_weight
+        };
         let value = scalar(&loss)?;
         let grads = loss.backward();
         let mut collect = CollectAllGrads { grads: &grads, ids: &ids, out: HashMap::new() };
@@ -1341,6 +1383,9 @@ pub fn train_vae(
         on_step(step, value);
     }
     let vae = vae.valid();
+    if options.decoder_only {
+        return Ok(vae);
+    }
     let mut sum = 0.0f64;
     let mut sum_sq = 0.0f64;
     let mut count = 0usize;

@@ -275,6 +275,19 @@ impl Vae {
         Ok((mean, logvar))
     }
 
+    /// The parameters of the decoding half (`post_quant_conv` and `decoder.*`): what a
+    /// decoder-only fine-tune trains, leaving the encoder and so the latent space alone.
+    pub(crate) fn decoder_param_ids(&self) -> Vec<burn::module::ParamId> {
+        use crate::weights::collect_named_ids;
+        let mut ids = collect_named_ids(&self.post_quant_conv);
+        ids.extend(collect_named_ids(&self.decoder_conv_in));
+        ids.extend(collect_named_ids(&self.decoder_mid));
+        ids.extend(collect_named_ids(&self.decoder_blocks));
+        ids.extend(collect_named_ids(&self.decoder_norm_out));
+        ids.extend(collect_named_ids(&self.decoder_conv_out));
+        ids
+    }
+
     /// This model with `scaling_factor` set (the factor that brings the latents of the
     /// training images to unit standard deviation for the diffusion model).
     pub fn with_scaling_factor(mut self, scaling_factor: f64) -> Self {

@@ -270,3 +270,42 @@ fn a_small_vae_learns_to_reconstruct_the_views() {
     let loaded = w3d_diffusion::Vae::from_dir(&out, &device).unwrap();
     assert_eq!(loaded.config().scaling_factor, vae.config().scaling_factor);
 }
+
+#[test]
+fn a_decoder_only_fine_tune_keeps_the_encoder_and_its_scaling() {
+    use w3d_diffusion::train::{VaeTrainOptions, train_vae};
+    use w3d_diffusion::{Tensor, TensorData};
+    let dir = tempfile::tempdir().unwrap();
+    write_set(dir.path(), &[("a", CameraType::Orthographic, "grey")]);
+    let set = TrainingSet::open(dir.path()).unwrap();
+    let images: Vec<Image> = set.images(0).unwrap().domains.into_iter().flatten().collect();
+    let device = w3d_diffusion::default_device();
+    let config = w3d_diffusion::VaeConfig::from_file(fixture("wonder3d_tiny").join("vae").join("config.json")).unwrap();
+    // A VAE trained a little (whole), so its latents carry the images.
+    let options = VaeTrainOptions::default().with_steps(30).with_batch(4).with_learning_rate(3e-3);
+    let vae = w3d_diffusion::Vae::random(&config, 1, &device).unwrap();
+    let vae = train_vae(vae, &images, &options, &mut |_, _| {}).unwrap();
+    let (w, h) = (images[0].width() as usize, images[0].height() as usize);
+    let batch: Vec<Tensor<4>> = images
+        .iter()
+        .map(|image| {
+            let t: Tensor<3> = Tensor::from_data(TensorData::new(image.data().to_vec(), [h, w, 3]), &device);
+            t.permute([2, 0, 1]).reshape([1, 3, h, w]) * 2.0 - 1.0
+        })
+        .collect();
+    let x = Tensor::cat(batch, 0);
+    let values = |t: Tensor<4>| t.into_data().convert::<f32>().try_to_vec::<f32>().unwrap();
+    let error = |vae: &w3d_diffusion::Vae| {
+        let diff = vae.decode(vae.encode_mean(x.clone()).unwrap()).unwrap() - x.clone();
+        (diff.clone() * diff).mean().into_scalar::<f32>()
+    };
+    let mean_before = values(vae.encode_mean(x.clone()).unwrap());
+    let (scaling, error_before) = (vae.config().scaling_factor, error(&vae));
+    let options = options.with_steps(40).with_sample_posterior(false).with_decoder_only(true);
+    let vae = train_vae(vae, &images, &options, &mut |_, _| {}).unwrap();
+    assert_eq!(values(vae.encode_mean(x.clone()).unwrap()), mean_before, "the encoder changed");
+    assert_eq!(vae.config().scaling_factor, scaling, "the scaling factor changed");
+    let error_after = error(&vae);
+    eprintln!("reconstruction error {error_before} → {error_after}");
+    assert!(error_after < 0.8 * error_before, "reconstruction error {error_before} → {error_after}");
+}

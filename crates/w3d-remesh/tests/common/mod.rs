@@ -66,124 +66,43 @@ pub fn load_unit(name: &str) -> Mesh {
 }
 
 use glam::Vec3;
+use kiddo::{ImmutableKdTree, SquaredEuclidean};
+use w3d_eval::MeshDistance;
 
-/// Closest point to `p` on triangle `(a, b, c)` (Voronoi-region walk, after Ericson,
-/// "Real-Time Collision Detection" §5.1.5).
-pub fn closest_on_triangle(p: Vec3, a: Vec3, b: Vec3, c: Vec3) -> Vec3 {
-    let (ab, ac, ap) = (b - a, c - a, p - a);
-    let (d1, d2) = (ab.dot(ap), ac.dot(ap));
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return a;
-    }
-    let bp = p - b;
-    let (d3, d4) = (ab.dot(bp), ac.dot(bp));
-    if d3 >= 0.0 && d4 <= d3 {
-        return b;
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        return a + ab * (d1 / (d1 - d3));
-    }
-    let cp = p - c;
-    let (d5, d6) = (ab.dot(cp), ac.dot(cp));
-    if d6 >= 0.0 && d5 <= d6 {
-        return c;
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        return a + ac * (d2 / (d2 - d6));
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
-    }
-    let denom = 1.0 / (va + vb + vc);
-    a + ab * (vb * denom) + ac * (vc * denom)
-}
-
-/// Exact closest-point queries on a triangle soup through a uniform grid of buckets
-/// (a brute-force search restricted to the cells that can hold the answer).
-pub struct ClosestPoints {
-    triangles: Vec<[Vec3; 3]>,
-    origin: Vec3,
-    cell: f32,
-    dims: [i32; 3],
-    buckets: Vec<Vec<u32>>,
+/// Closest-point queries for the tests' distance losses, in f32: on a triangle mesh through
+/// `w3d-eval`'s exact hierarchy ([`MeshDistance`]), on a point set through a `kiddo` k-d tree.
+pub enum ClosestPoints {
+    /// The surface of a triangle mesh.
+    Surface(MeshDistance),
+    /// A point set (the tree and its points).
+    Points(ImmutableKdTree<f32, 3>, Vec<Vec3>),
 }
 
 impl ClosestPoints {
-    /// Buckets the triangles `faces` of `positions` into cells of size `cell`.
-    pub fn new(positions: &[[f32; 3]], faces: &[[u32; 3]], cell: f32) -> Self {
-        let triangles: Vec<[Vec3; 3]> = faces.iter().map(|t| t.map(|v| Vec3::from(positions[v as usize]))).collect();
-        Self::from_triangles(triangles, cell)
+    /// Queries on the surface of the triangles `faces` of `positions`.
+    pub fn new(positions: &[[f32; 3]], faces: &[[u32; 3]]) -> Self {
+        let mesh = Mesh::new(positions.to_vec(), faces.to_vec()).expect("a valid mesh");
+        ClosestPoints::Surface(MeshDistance::new(&mesh).expect("a mesh with area"))
     }
 
     /// Nearest-point queries on a point set.
-    pub fn points(points: &[Vec3], cell: f32) -> Self {
-        Self::from_triangles(points.iter().map(|&p| [p, p, p]).collect(), cell)
+    pub fn points(points: &[Vec3]) -> Self {
+        let coords: Vec<[f32; 3]> = points.iter().map(|p| p.to_array()).collect();
+        ClosestPoints::Points(ImmutableKdTree::new_from_slice(&coords), points.to_vec())
     }
 
-    fn from_triangles(triangles: Vec<[Vec3; 3]>, cell: f32) -> Self {
-        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
-        for t in &triangles {
-            for p in t {
-                lo = lo.min(*p);
-                hi = hi.max(*p);
-            }
-        }
-        let origin = lo - Vec3::splat(cell);
-        let dims = ((hi - origin) / cell).ceil().as_ivec3() + 2;
-        let dims = [dims.x, dims.y, dims.z];
-        let mut buckets = vec![Vec::new(); (dims[0] * dims[1] * dims[2]) as usize];
-        for (i, t) in triangles.iter().enumerate() {
-            let tlo = ((t[0].min(t[1]).min(t[2]) - origin) / cell).floor().as_ivec3();
-            let thi = ((t[0].max(t[1]).max(t[2]) - origin) / cell).floor().as_ivec3();
-            for x in tlo.x..=thi.x {
-                for y in tlo.y..=thi.y {
-                    for z in tlo.z..=thi.z {
-                        buckets[((x * dims[1] + y) * dims[2] + z) as usize].push(i as u32);
-                    }
-                }
-            }
-        }
-        ClosestPoints { triangles, origin, cell, dims, buckets }
-    }
-
-    /// The closest point and the index of its triangle.
+    /// The closest point and the index of its triangle (or point).
     pub fn query(&self, p: Vec3) -> (Vec3, usize) {
-        let c = ((p - self.origin) / self.cell).floor().as_ivec3();
-        let c = [c.x, c.y, c.z];
-        let (mut best, mut best_d2, mut best_i) = (p, f32::INFINITY, 0);
-        let outside = (0..3).map(|k| (-c[k]).max(c[k] - self.dims[k] + 1).max(0)).max().unwrap();
-        let max_ring = self.dims.iter().max().unwrap() + outside;
-        for r in 0..=max_ring {
-            for x in c[0] - r..=c[0] + r {
-                for y in c[1] - r..=c[1] + r {
-                    for z in c[2] - r..=c[2] + r {
-                        let on_shell = (x - c[0]).abs() == r || (y - c[1]).abs() == r || (z - c[2]).abs() == r;
-                        let inside =
-                            x >= 0 && y >= 0 && z >= 0 && x < self.dims[0] && y < self.dims[1] && z < self.dims[2];
-                        if !on_shell || !inside {
-                            continue;
-                        }
-                        for &i in &self.buckets[((x * self.dims[1] + y) * self.dims[2] + z) as usize] {
-                            let [a, b, cc] = self.triangles[i as usize];
-                            let q = closest_on_triangle(p, a, b, cc);
-                            let d2 = (q - p).length_squared();
-                            if d2 < best_d2 || (d2 == best_d2 && (i as usize) < best_i) {
-                                (best, best_d2, best_i) = (q, d2, i as usize);
-                            }
-                        }
-                    }
-                }
+        match self {
+            ClosestPoints::Surface(surface) => {
+                let (q, t) = surface.closest_point(p.as_dvec3());
+                (q.as_vec3(), t)
             }
-            // Everything beyond ring r lies at least (r − outside) cells away.
-            let reach = (r - outside) as f32 * self.cell;
-            if best_d2.is_finite() && reach > 0.0 && best_d2 <= reach * reach {
-                break;
+            ClosestPoints::Points(tree, points) => {
+                let i = tree.nearest_one::<SquaredEuclidean>(&p.to_array()).item as usize;
+                (points[i], i)
             }
         }
-        (best, best_i)
     }
 }
 

@@ -58,7 +58,7 @@ fn run_rounds(mesh: &Mesh, jitter: f32, sigma: f32, seed: u64) -> Result<(), Tes
     let options = RemeshOptions::default().with_seed(seed).with_edge_len_lims((0.04, 0.12));
     let mut opt = MeshOptimizer::new(perturbed(mesh, jitter, seed), mesh.triangles().to_vec(), options).unwrap();
     let (lo, hi) = options.edge_len_lims;
-    let target = ClosestPoints::new(mesh.positions(), mesh.triangles(), 0.03);
+    let target = ClosestPoints::new(mesh.positions(), mesh.triangles());
     for round in 0..100 {
         let grad = gradient(&target, opt.positions(), sigma, mix(seed ^ round));
         opt.step(&grad).unwrap();
@@ -123,7 +123,7 @@ proptest! {
 #[test]
 fn same_seed_same_bytes() {
     let spot = common::load_unit("spot.obj");
-    let target = ClosestPoints::new(spot.positions(), spot.triangles(), 0.03);
+    let target = ClosestPoints::new(spot.positions(), spot.triangles());
     let run = |seed: u64| {
         let options = RemeshOptions::default().with_seed(seed);
         let mut opt = MeshOptimizer::from_mesh(&spot, options).unwrap();

@@ -13,7 +13,7 @@ use w3d_remesh::{MeshOptimizer, RemeshOptions, check_manifold, icosphere};
 #[test]
 fn icosphere_fits_spot() {
     let spot = load_unit("spot.obj");
-    let target = ClosestPoints::new(spot.positions(), spot.triangles(), 0.03);
+    let target = ClosestPoints::new(spot.positions(), spot.triangles());
     let target_samples = samples(spot.positions(), spot.triangles());
     // The lower limit stands in for a pixel footprint (0.02 ≈ 3.4 px of a 1.5-unit view at
     // 256²) and keeps the test small; everything else is the default.
@@ -25,7 +25,7 @@ fn icosphere_fits_spot() {
     for _ in 0..300 {
         let positions: Vec<Vec3> = opt.positions().iter().map(|&p| Vec3::from(p)).collect();
         let mut grad: Vec<Vec3> = positions.iter().map(|&x| x - target.query(x).0).collect();
-        let nearest = ClosestPoints::points(&positions, 0.03);
+        let nearest = ClosestPoints::points(&positions);
         for &p in &target_samples {
             let (q, v) = nearest.query(p);
             grad[v] += q - p;
@@ -53,7 +53,7 @@ fn icosphere_fits_spot() {
     let summary = check_manifold(opt.vertex_count(), opt.triangles()).unwrap();
     assert_eq!((summary.is_closed(), summary.genus()), (true, Some(0)));
 
-    let fitted = ClosestPoints::new(opt.positions(), opt.triangles(), 0.03);
+    let fitted = ClosestPoints::new(opt.positions(), opt.triangles());
     let ours = samples(opt.positions(), opt.triangles());
     let to_spot = ours.iter().map(|&p| (target.query(p).0 - p).length()).sum::<f32>() / ours.len() as f32;
     let to_ours =

@@ -13,7 +13,7 @@ use w3d_remesh::{SimplifyOptions, check_manifold, geodesic_sphere, simplify, sim
 /// `reference`, and back.
 fn two_sided_distance(mesh: &Mesh, reference: &Mesh) -> f32 {
     let one_way = |from: &Mesh, to: &Mesh| {
-        let index = ClosestPoints::new(to.positions(), to.triangles(), 0.02);
+        let index = ClosestPoints::new(to.positions(), to.triangles());
         samples(from.positions(), from.triangles())
             .into_iter()
             .map(|p| (index.query(p).0 - p).length())
