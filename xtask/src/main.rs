@@ -53,7 +53,9 @@
 //! - `cargo xtask train-small [--out DIR] [--quick] [--resume]`, `cargo xtask eval-small [--model DIR]`,
 //!   `cargo xtask ship-small [--model DIR]`: the small model's recipe, its scores
 //!   (`docs/img/small_model.png`) and its f16 copy in `assets/model-small`
-//!   (`docs/training.md`).
+//!   (`docs/training.md`); `cargo xtask tune-decoder --data DIR --out DIR [--model DIR]
+//!   [--steps N] [--lr LR]`: a small model's VAE decoder fine-tuned on its frozen encoder's
+//!   latents.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
@@ -95,7 +97,8 @@ enum Task {
     /// with the small model on wgpu and on the CPU (views compared), and the GPU benchmark on
     /// the tiny checkpoint.
     GpuCheck,
-    /// Train the small multi-view model (docs/training.md): dataset, VAE, three UNet stages.
+    /// Train the small multi-view model (docs/training.md): dataset, VAE, three UNet stages,
+    /// two joint phases, the decoder's fine-tune.
     TrainSmall {
         /// Output folder (dataset, stage checkpoints and logs, final model).
         #[arg(long, default_value = "target/train-small")]
@@ -108,6 +111,25 @@ enum Task {
         /// uninterrupted run's).
         #[arg(long)]
         resume: bool,
+    },
+    /// Fine-tune the VAE decoder of a small model (encoder frozen, so its UNet keeps
+    /// working) on a training set's views on white (docs/training.md, "The decoder").
+    TuneDecoder {
+        /// Model directory to start from.
+        #[arg(long, default_value = "assets/model-small")]
+        model: PathBuf,
+        /// Training set (a `wonder3d dataset` folder at the model's size).
+        #[arg(long)]
+        data: PathBuf,
+        /// Output model directory (written whole at the end).
+        #[arg(long)]
+        out: PathBuf,
+        /// Optimizer steps (batch 4).
+        #[arg(long, default_value_t = 2000)]
+        steps: usize,
+        /// Learning rate (constant).
+        #[arg(long, default_value_t = 3e-4)]
+        lr: f64,
     },
     /// Put a trained model into assets/model-small with f16 weights (the model the
     /// repository ships; provenance in assets/model-small.md).
@@ -730,6 +752,9 @@ fn main() -> ExitCode {
             eval_small::run(&model, &out, &sampling, &sheet, data.as_deref())
         }
         Task::ShipSmall { model } => train_small::ship(&model),
+        Task::TuneDecoder { model, data, out, steps, lr } => {
+            train_small::tune_decoder_command(&model, &data, &out, steps, lr)
+        }
         Task::Bench { suite, criterion_args } => bench(&suite, &criterion_args),
         Task::RefineTable { meshes, all, rig, size, laplacian, lr, edges, simplify, curvature } => {
             refine_table::mesh_options(laplacian, lr, edges.as_deref(), simplify.as_deref(), curvature.as_deref())

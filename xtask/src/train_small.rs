@@ -1,14 +1,16 @@
 //! `cargo xtask train-small`: the recipe of the small model shipped in `assets/model-small`
 //! (`docs/training.md`; `cargo xtask ship-small` puts a trained model there in f16): a training set rendered from the CC0 / CC BY meshes, a small VAE
-//! trained on its images, a frozen random CLIP image encoder, and the multi-view UNet trained
-//! through Wonder3D++'s three stages and a joint phase on white backgrounds, each starting from the previous one.
+//! trained on its images, a frozen random CLIP image encoder, the multi-view UNet trained
+//! through Wonder3D++'s three stages and two joint phases on white backgrounds, each starting
+//! from the previous one, and last the VAE's decoder fine-tuned with its encoder frozen.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use wonder3d::dataset::{Dataset, DatasetOptions};
 use wonder3d::diffusion::train::{
-    CHECKPOINT_DIR, RunEvent, RunOptions, STATE_FILE, Stage, TrainOptions, VaeTrainOptions, run_training, train_vae,
+    CHECKPOINT_DIR, EMA_DIR, RunEvent, RunOptions, STATE_FILE, Stage, TrainOptions, VaeTrainOptions, run_training,
+    train_vae,
 };
 use wonder3d::diffusion::training_set::{Background, TrainingSet};
 use wonder3d::diffusion::{
@@ -31,23 +33,28 @@ pub(crate) const TRAIN_MESHES: &[&str] = &[
 pub(crate) const HELD_OUT_MESH: &str = "assets/torus.obj";
 
 /// One phase of the UNet's training: its folder, the stage (the batch layout and, unless
-/// `train_all`, the trainable set), and whether every sample is composited on white.
+/// `train_all`, the trainable set), whether every sample is composited on white, the seed of
+/// its draws and the decay of its weights' moving average (`None`: no EMA).
 struct Phase {
     dir: &'static str,
     stage: Stage,
     train_all: bool,
     white: bool,
+    seed: u64,
+    ema_decay: Option<f64>,
 }
 
-/// Wonder3D++'s three stages on the dataset's three backgrounds, then a joint phase: the whole
-/// UNet with the cross-domain attention (Wonder3D v1's joint training) on white, the only
-/// background inference uses — a model this small generates garbage from an input on a
-/// background other than the one its sample was trained on (docs/training.md).
-const PHASES: [Phase; 4] = [
-    Phase { dir: "stage1", stage: Stage::MultiDomain, train_all: false, white: false },
-    Phase { dir: "stage2", stage: Stage::MixedDomain, train_all: false, white: false },
-    Phase { dir: "stage3", stage: Stage::CrossDomain, train_all: false, white: false },
-    Phase { dir: "joint", stage: Stage::CrossDomain, train_all: true, white: true },
+/// Wonder3D++'s three stages on the dataset's three backgrounds, then two joint phases: the
+/// whole UNet with the cross-domain attention (Wonder3D v1's joint training) on white, the
+/// only background inference uses — a model this small generates garbage from an input on a
+/// background other than the one its sample was trained on (docs/training.md). The second
+/// joint phase continues the first with fresh optimizer moments and an EMA of the weights.
+const PHASES: [Phase; 5] = [
+    Phase { dir: "stage1", stage: Stage::MultiDomain, train_all: false, white: false, seed: 10, ema_decay: None },
+    Phase { dir: "stage2", stage: Stage::MixedDomain, train_all: false, white: false, seed: 11, ema_decay: None },
+    Phase { dir: "stage3", stage: Stage::CrossDomain, train_all: false, white: false, seed: 12, ema_decay: None },
+    Phase { dir: "joint", stage: Stage::CrossDomain, train_all: true, white: true, seed: 13, ema_decay: None },
+    Phase { dir: "joint2", stage: Stage::CrossDomain, train_all: true, white: true, seed: 1, ema_decay: Some(0.999) },
 ];
 
 /// The schedule of one run.
@@ -56,11 +63,14 @@ pub(crate) struct Schedule {
     pub samples: usize,
     pub size: u32,
     pub vae_steps: usize,
-    /// Steps of each phase: the three stages, then the joint phase ([`PHASES`]).
-    pub stage_steps: [usize; 4],
+    /// Steps of each phase: the three stages, then the joint phases ([`PHASES`]).
+    pub stage_steps: [usize; 5],
     /// Warm-up steps of each phase.
-    pub stage_warmup: [usize; 4],
-    pub stage_lr: [f64; 4],
+    pub stage_warmup: [usize; 5],
+    pub stage_lr: [f64; 5],
+    /// Steps and learning rate of the decoder's fine-tune after the UNet ([`tune_decoder`]).
+    pub decoder_steps: usize,
+    pub decoder_lr: f64,
     pub objects_per_batch: usize,
     /// Min-SNR γ of the UNet's loss (`None`: the plain MSE of the v-prediction).
     pub min_snr_gamma: Option<f64>,
@@ -72,9 +82,11 @@ impl Schedule {
             samples: 12,
             size: 64,
             vae_steps: 1200,
-            stage_steps: [800, 6000, 1000, 3000],
-            stage_warmup: [40, 300, 75, 50],
-            stage_lr: [5e-4, 3e-4, 2e-4, 1e-4],
+            stage_steps: [800, 6000, 1000, 3000, 8000],
+            stage_warmup: [40, 300, 75, 50, 50],
+            stage_lr: [5e-4, 3e-4, 2e-4, 1e-4, 1e-4],
+            decoder_steps: 1500,
+            decoder_lr: 3e-4,
             objects_per_batch: 1,
             // The small model predicts v and weighs every timestep alike in v (x₀ error
             // weighted by SNR + 1): with ε or Min-SNR weights (x₀ error weighted by
@@ -90,8 +102,9 @@ impl Schedule {
             samples: 2,
             size: 64,
             vae_steps: 20,
-            stage_steps: [10, 10, 10, 10],
-            stage_warmup: [1, 1, 1, 1],
+            stage_steps: [10, 10, 10, 10, 10],
+            stage_warmup: [1, 1, 1, 1, 1],
+            decoder_steps: 10,
             ..Self::full()
         }
     }
@@ -177,6 +190,12 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
                 phase.dir
             );
             pipeline = MultiViewPipeline::from_dir(stage_dir.join(CHECKPOINT_DIR), &device).map_err(err)?;
+            if phase.ema_decay.is_some() {
+                // The phase's result is its moving average, as `run_training` returns it.
+                let (_, vae, clip, scheduler) = pipeline.into_parts();
+                let unet = UNet::from_dir(stage_dir.join(CHECKPOINT_DIR).join(EMA_DIR), &device).map_err(err)?;
+                pipeline = MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)?;
+            }
             continue;
         }
         // This stage trains: every later one starts afresh.
@@ -192,7 +211,8 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
             .with_warmup_steps(schedule.stage_warmup[i])
             .with_min_snr_gamma(schedule.min_snr_gamma)
             .with_train_all(phase.train_all)
-            .with_seed(10 + i as u64);
+            .with_ema_decay(phase.ema_decay)
+            .with_seed(phase.seed);
         let set = set.clone().with_background(phase.white.then_some(Background::White));
         let run = RunOptions::default()
             .with_steps(steps)
@@ -219,6 +239,10 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
         .map_err(err)?;
         eprintln!("[{:6.0}s] {} done", started.elapsed().as_secs_f64(), phase.dir);
     }
+    // 5. The decoder, sharpened on the latents of the frozen encoder.
+    let t = Instant::now();
+    pipeline = tune_decoder(pipeline, &set, schedule.decoder_steps, schedule.decoder_lr)?;
+    eprintln!("[{:6.0}s] decoder tuned in {:.0} s", started.elapsed().as_secs_f64(), t.elapsed().as_secs_f64());
     let model = out.join("model");
     pipeline.save(&model).map_err(err)?;
     let wall = started.elapsed().as_secs_f64();
@@ -226,9 +250,11 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
         "schedule": {
             "samples_per_mesh": schedule.samples, "size": schedule.size, "vae_steps": schedule.vae_steps,
             "stage_steps": schedule.stage_steps, "stage_warmup": schedule.stage_warmup, "stage_lr": schedule.stage_lr,
-            "objects_per_batch": schedule.objects_per_batch, "min_snr_gamma": schedule.min_snr_gamma,
+            "objects_per_batch": schedule.objects_per_batch, "decoder_steps": schedule.decoder_steps,
+            "decoder_lr": schedule.decoder_lr, "min_snr_gamma": schedule.min_snr_gamma,
             "phases": PHASES.iter().map(|p| serde_json::json!({
                 "dir": p.dir, "stage": p.stage.number(), "train_all": p.train_all, "white_background": p.white,
+                "seed": p.seed, "ema_decay": p.ema_decay,
             })).collect::<Vec<_>>(),
         },
         "meshes": TRAIN_MESHES, "held_out": HELD_OUT_MESH,
@@ -290,6 +316,72 @@ fn fresh_model(
     let unet_config = UNetConfig::from_file(config_dir().join("unet").join("config.json")).map_err(err)?;
     let unet = UNet::random(&unet_config, 3, device).map_err(err)?;
     MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)
+}
+
+/// Fine-tunes the decoder of `pipeline`'s VAE on the normal and colour views of `set` on
+/// white (what inference decodes), the encoder frozen: the latent space the UNet was trained
+/// in stays exactly as it was, and the decoder learns to draw it more sharply
+/// (docs/training.md, "The decoder").
+pub(crate) fn tune_decoder(
+    pipeline: MultiViewPipeline,
+    set: &TrainingSet,
+    steps: usize,
+    learning_rate: f64,
+) -> Result<MultiViewPipeline, String> {
+    let set = set.clone().with_background(Some(Background::White));
+    let mut images = Vec::new();
+    for i in 0..set.len() {
+        let [normal, colour, _mask] = set.images(i).map_err(err)?.domains;
+        images.extend(normal);
+        images.extend(colour);
+    }
+    let (unet, vae, clip, scheduler) = pipeline.into_parts();
+    let options = VaeTrainOptions::default()
+        .with_steps(steps)
+        .with_batch(4)
+        .with_learning_rate(learning_rate)
+        .with_sample_posterior(false)
+        .with_decoder_only(true)
+        .with_seed(21);
+    let t = Instant::now();
+    let mut recent = Vec::new();
+    let vae = train_vae(vae, &images, &options, &mut |step, loss| {
+        recent.push(loss);
+        if step % 100 == 0 || step == steps {
+            let mean = recent.iter().sum::<f32>() / recent.len() as f32;
+            recent.clear();
+            eprintln!(
+                "  decoder step {step}/{steps}: mean loss {mean:.5} ({:.2} s/step)",
+                t.elapsed().as_secs_f64() / step as f64
+            );
+        }
+    })
+    .map_err(err)?;
+    MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)
+}
+
+/// `cargo xtask tune-decoder`: [`tune_decoder`] from the model in `model` on the set in
+/// `data`, the result written to `out` (checked first: it must not exist yet).
+pub(crate) fn tune_decoder_command(model: &Path, data: &Path, out: &Path, steps: usize, lr: f64) -> Result<(), String> {
+    if out.exists() {
+        return Err(format!("{}: already exists (choose a new output folder)", out.display()));
+    }
+    let device = wonder3d::diffusion::default_device();
+    let pipeline = MultiViewPipeline::from_dir(model, &device).map_err(err)?;
+    let set = TrainingSet::open(data).map_err(err)?;
+    if set.size() != pipeline.image_size() as u32 {
+        return Err(format!(
+            "{}: images of {}² (the model's size; found {}²)",
+            data.display(),
+            pipeline.image_size(),
+            set.size()
+        ));
+    }
+    let started = Instant::now();
+    let pipeline = tune_decoder(pipeline, &set, steps, lr)?;
+    pipeline.save(out).map_err(err)?;
+    eprintln!("[{:6.0}s] model with the tuned decoder written to {}", started.elapsed().as_secs_f64(), out.display());
+    Ok(())
 }
 
 /// Writes the model in `model` to `assets/model-small` with f16 weights (replacing the folder
