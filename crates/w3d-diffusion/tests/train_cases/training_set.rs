@@ -247,9 +247,9 @@ fn a_resumed_run_continues_the_uninterrupted_one_exactly() {
     assert!(e.to_string().contains("trainer_state.json"), "{e}");
 }
 
-#[test]
-fn a_small_vae_learns_to_reconstruct_the_views() {
-    use w3d_diffusion::train::{VaeTrainOptions, train_vae};
+/// A one-sample set's model images (in its temporary folder), the device and a random VAE of
+/// the tiny configuration: the start of the VAE training tests.
+fn vae_training_start() -> (tempfile::TempDir, Vec<Image>, w3d_diffusion::Device, w3d_diffusion::Vae) {
     let dir = tempfile::tempdir().unwrap();
     write_set(dir.path(), &[("a", CameraType::Orthographic, "grey")]);
     let set = TrainingSet::open(dir.path()).unwrap();
@@ -257,6 +257,13 @@ fn a_small_vae_learns_to_reconstruct_the_views() {
     let device = w3d_diffusion::default_device();
     let config = w3d_diffusion::VaeConfig::from_file(fixture("wonder3d_tiny").join("vae").join("config.json")).unwrap();
     let vae = w3d_diffusion::Vae::random(&config, 1, &device).unwrap();
+    (dir, images, device, vae)
+}
+
+#[test]
+fn a_small_vae_learns_to_reconstruct_the_views() {
+    use w3d_diffusion::train::{VaeTrainOptions, train_vae};
+    let (dir, images, device, vae) = vae_training_start();
     let mut losses = Vec::new();
     let options = VaeTrainOptions::default().with_steps(60).with_batch(4).with_learning_rate(3e-3);
     let vae = train_vae(vae, &images, &options, &mut |_, loss| losses.push(loss)).unwrap();
@@ -275,15 +282,9 @@ fn a_small_vae_learns_to_reconstruct_the_views() {
 fn a_decoder_only_fine_tune_keeps_the_encoder_and_its_scaling() {
     use w3d_diffusion::train::{VaeTrainOptions, train_vae};
     use w3d_diffusion::{Tensor, TensorData};
-    let dir = tempfile::tempdir().unwrap();
-    write_set(dir.path(), &[("a", CameraType::Orthographic, "grey")]);
-    let set = TrainingSet::open(dir.path()).unwrap();
-    let images: Vec<Image> = set.images(0).unwrap().domains.into_iter().flatten().collect();
-    let device = w3d_diffusion::default_device();
-    let config = w3d_diffusion::VaeConfig::from_file(fixture("wonder3d_tiny").join("vae").join("config.json")).unwrap();
+    let (_dir, images, device, vae) = vae_training_start();
     // A VAE trained a little (whole), so its latents carry the images.
     let options = VaeTrainOptions::default().with_steps(30).with_batch(4).with_learning_rate(3e-3);
-    let vae = w3d_diffusion::Vae::random(&config, 1, &device).unwrap();
     let vae = train_vae(vae, &images, &options, &mut |_, _| {}).unwrap();
     let (w, h) = (images[0].width() as usize, images[0].height() as usize);
     let batch: Vec<Tensor<4>> = images
