@@ -34,7 +34,7 @@
 use std::collections::{HashMap, HashSet};
 
 use burn::module::{Module, ModuleMapper, ModuleVisitor, Param, ParamId};
-use burn::tensor::{Device, Gradients, Tensor, TensorData};
+use burn::tensor::{Device, GradientCheckpointingStrategy, Gradients, Tensor, TensorData};
 use w3d_core::Error;
 
 use crate::config::SchedulerConfig;
@@ -135,6 +135,13 @@ pub struct TrainOptions {
     /// In stage 3 this is Wonder3D (v1)'s joint training, where the whole UNet learns with
     /// the cross-domain attention; the small model's last phase uses it (`docs/training.md`).
     pub train_all: bool,
+    /// Gradient checkpointing (off): the model trains on an autodiff device with Burn's
+    /// balanced checkpointing strategy, which keeps the outputs of compute-bound operations
+    /// (matrix products, convolutions) and recomputes the memory-bound ones (element-wise
+    /// operations, normalisations, activations) during the backward pass. Same loss and
+    /// gradients to rounding; lower peak memory for more time per step
+    /// (`docs/training.md`, "Gradient checkpointing", has both measured).
+    pub gradient_checkpointing: bool,
 }
 
 impl TrainOptions {
@@ -155,12 +162,19 @@ impl TrainOptions {
             seed: 0,
             ema_decay: None,
             train_all: false,
+            gradient_checkpointing: false,
         }
     }
 
     /// Trains every parameter whatever the stage (see [`TrainOptions::train_all`]).
     pub fn with_train_all(mut self, train_all: bool) -> Self {
         self.train_all = train_all;
+        self
+    }
+
+    /// Turns gradient checkpointing on or off (see [`TrainOptions::gradient_checkpointing`]).
+    pub fn with_gradient_checkpointing(mut self, on: bool) -> Self {
+        self.gradient_checkpointing = on;
         self
     }
 
@@ -509,7 +523,8 @@ impl Trainer {
                 ),
             ));
         }
-        let unet = unet.map(&mut RequireGrad { trainable: &trainable }).train();
+        let checkpointing = options.gradient_checkpointing;
+        let unet = unet.map(&mut RequireGrad { trainable: &trainable, checkpointing }).train();
         let rng = options.seed ^ 0x9E37_79B9_7F4A_7C15;
         Ok(Self {
             unet,
@@ -775,11 +790,20 @@ fn scalar(loss: &Tensor<1>) -> Result<f32, Error> {
 /// Sets `require_grad` on the trainable parameters only.
 struct RequireGrad<'a> {
     trainable: &'a HashMap<ParamId, (String, bool)>,
+    /// Put every parameter on autodiff with Burn's balanced checkpointing strategy (the
+    /// trainer's device, and so every tensor made on it, then carries the strategy too:
+    /// operands must share one).
+    checkpointing: bool,
 }
 
 impl ModuleMapper for RequireGrad<'_> {
     fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
         let trains = self.trainable.contains_key(&param.id);
+        let param = if self.checkpointing {
+            param.map(|t| t.autodiff().with_gradient_checkpointing_strategy(GradientCheckpointingStrategy::Balanced))
+        } else {
+            param
+        };
         param.set_require_grad(trains)
     }
 }
@@ -871,10 +895,16 @@ impl ModuleMapper for AdamW<'_> {
         let weight_decay = 1.0 - lr * self.weight_decay;
         param.map(|tensor| {
             let dims = tensor.dims();
+            // The updated weight keeps the checkpointing strategy the trainer put it on.
+            let strategy = tensor.gradient_checkpointing_strategy();
             let inner = tensor.inner();
             let n = inner.shape().num_elements();
-            let updated = inner.reshape([n]) * weight_decay - delta;
-            Tensor::from_inner(updated.reshape(dims)).require_grad()
+            let updated = Tensor::from_inner((inner.reshape([n]) * weight_decay - delta).reshape(dims));
+            match strategy {
+                Some(strategy) => updated.with_gradient_checkpointing_strategy(strategy),
+                None => updated,
+            }
+            .require_grad()
         })
     }
 }

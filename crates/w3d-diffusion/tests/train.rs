@@ -84,6 +84,40 @@ fn a_fresh_tiny_model_fits_one_fixed_batch() {
 }
 
 #[test]
+fn gradient_checkpointing_gives_the_same_loss_gradients_and_step() {
+    let device = w3d_diffusion::default_device();
+    let unet = UNet::random(&tiny_config(), 5, &device).unwrap();
+    let options = TrainOptions::for_stage(Stage::MixedDomain).with_warmup_steps(0);
+    let mut plain = Trainer::new(unet.clone(), scheduler(), options.clone()).unwrap();
+    let mut checkpointed = Trainer::new(unet, scheduler(), options.with_gradient_checkpointing(true)).unwrap();
+    // The strategy is really on: the trainer's device (and so every batch made on it) carries it.
+    assert_eq!(format!("{:?}", plain.device().gradient_checkpointing_strategy()), "Some(Disabled)");
+    assert_eq!(format!("{:?}", checkpointed.device().gradient_checkpointing_strategy()), "Some(Balanced)");
+    let (a, b) = (batch(&plain.device(), 3), batch(&checkpointed.device(), 3));
+    let (draws_a, draws_b) = (fixed_draws(&plain.device()), fixed_draws(&checkpointed.device()));
+    let (loss_a, grads_a) = plain.gradients(&a, &draws_a).unwrap();
+    let (loss_b, grads_b) = checkpointed.gradients(&b, &draws_b).unwrap();
+    assert!((loss_a - loss_b).abs() <= 1e-6 * loss_a.abs(), "loss {loss_a} vs {loss_b}");
+    assert_eq!(grads_a.len(), grads_b.len());
+    assert!(grads_a.len() > 100, "{} trained tensors", grads_a.len());
+    for (ga, gb) in grads_a.iter().zip(&grads_b) {
+        assert_eq!(ga.key, gb.key);
+        let scale = ga.values.iter().fold(1e-12f32, |m, v| m.max(v.abs()));
+        let err = ga.values.iter().zip(&gb.values).fold(0.0f32, |m, (x, y)| m.max((x - y).abs()));
+        assert!(err <= 1e-5 * scale, "{}: gradients differ by {err} (largest {scale})", ga.key);
+    }
+    for _ in 0..2 {
+        plain.step_with(&a, &draws_a).unwrap();
+        checkpointed.step_with(&b, &draws_b).unwrap();
+    }
+    let (pa, pb) = (params_by_key(&plain.inference_unet()), params_by_key(&checkpointed.inference_unet()));
+    for (key, va) in &pa {
+        let err = va.iter().zip(&pb[key]).fold(0.0f32, |m, (x, y)| m.max((x - y).abs()));
+        assert!(err <= 1e-6, "{key}: parameters differ by {err} after two steps");
+    }
+}
+
+#[test]
 fn the_moving_average_follows_diffusers_ema_and_survives_a_resume() {
     let device = w3d_diffusion::default_device();
     let unet = UNet::random(&tiny_config(), 13, &device).unwrap();

@@ -77,6 +77,11 @@ pub struct TrainArgs {
     /// instead of the joint attention alone).
     #[arg(long)]
     pub train_all: bool,
+    /// Recompute the memory-bound activations (element-wise operations, normalisations) in
+    /// the backward pass instead of keeping them: less memory, more time per step
+    /// (docs/training.md, "Gradient checkpointing").
+    #[arg(long)]
+    pub gradient_checkpointing: bool,
     /// Composite every sample on this background instead of the one `dataset.json` records
     /// (`dataset`: the recorded one; inference always uses white).
     #[arg(long, value_enum, default_value_t = BackgroundArg::Dataset)]
@@ -141,7 +146,8 @@ pub fn run(args: &TrainArgs) -> Result<()> {
         .with_seed(args.seed)
         .with_ema_decay(args.ema_decay)
         .with_min_snr_gamma(args.min_snr_gamma.0)
-        .with_train_all(args.train_all);
+        .with_train_all(args.train_all)
+        .with_gradient_checkpointing(args.gradient_checkpointing);
     if let Some(lr) = args.lr {
         options = options.with_learning_rate(lr);
     }
