@@ -14,7 +14,7 @@
 //!   `target/bench/faces.json`, triangles against Chamfer distance of the refinement's adaptive
 //!   mesh and of uniform-edge-length meshes fitted the same way.
 //! - `cargo xtask refine-table [--meshes a,b] [--all] [--size 512] [--edges MIN,MAX]
-//!   [--simplify TOL|off] [--curvature TOL|off]`: the refinement loop with
+//!   [--simplify TOL|off] [--curvature TOL|views:TOL|off]`: the refinement loop with
 //!   the oracle and identity enhancers on noisy oracle views, `target/bench/refine.json` and the
 //!   refinement table of `docs/accuracy.md`; `--all`: the NaN / crossing sweep over every
 //!   closed mesh, the teapot and the teacups (`target/bench/refine_all_<size>.json`).

@@ -118,10 +118,24 @@ pub(crate) fn mesh_options(
     match curvature {
         None => {}
         Some("off") => mesh_options = mesh_options.with_curvature_tolerance(None),
-        Some(t) => match t.parse::<f32>() {
-            Ok(t) if t > 0.0 && t.is_finite() => mesh_options = mesh_options.with_curvature_tolerance(Some(t)),
-            _ => return Err(format!("--curvature {t}: a tolerance > 0 in world units, or `off`")),
-        },
+        Some(arg) => {
+            // `views:TOL` reads the curvature from the views (`curvature_from_views`).
+            let (from_views, t) = match arg.strip_prefix("views:") {
+                Some(t) => (true, t),
+                None => (false, arg),
+            };
+            match t.parse::<f32>() {
+                Ok(t) if t > 0.0 && t.is_finite() => {
+                    mesh_options = mesh_options.with_curvature_tolerance(Some(t)).with_curvature_from_views(from_views)
+                }
+                _ => {
+                    return Err(format!(
+                        "--curvature {arg}: a tolerance > 0 in world units (`views:TOL` to read the \
+                         curvature from the views), or `off`"
+                    ));
+                }
+            }
+        }
     }
     Ok(mesh_options)
 }
@@ -182,7 +196,7 @@ pub(crate) fn run(
 fn mesh_refinement_json(o: &wonder3d::recon::RefineOptions) -> Value {
     json!({ "lr": o.lr, "laplacian_weight": o.laplacian_weight, "steps": o.steps,
             "edge_len_lims": o.edge_len_lims, "simplify_tolerance": o.simplify_tolerance,
-            "curvature_tolerance": o.curvature_tolerance })
+            "curvature_tolerance": o.curvature_tolerance, "curvature_from_views": o.curvature_from_views })
 }
 
 fn write(path: &Path, text: &str) -> Result<(), String> {

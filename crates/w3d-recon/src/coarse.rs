@@ -31,7 +31,7 @@ use w3d_core::{Camera, Error, Mesh, Projection, Result, ViewRig, ViewSet};
 use w3d_raster::{
     EdgeTopology, antialias, antialias_backward, interpolate, interpolate_backward, rasterize_backward, rasterize_rig,
 };
-use w3d_remesh::{MeshOptimizer, RemeshOptions};
+use w3d_remesh::{CurvatureHint, MeshOptimizer, RemeshOptions};
 
 use crate::normals::{vertex_normals, vertex_normals_backward};
 
@@ -84,6 +84,23 @@ pub struct CoarseOptions {
     /// the coarse stage, whose sphere start says nothing about the object's curvature; the
     /// refinement ([`crate::RefineOptions::curvature_tolerance`]) sets it.
     pub curvature_tolerance: Option<f32>,
+    /// With a [`curvature_tolerance`](Self::curvature_tolerance): read the curvature a
+    /// vertex is sized by from the target normal maps where they show it, instead of from
+    /// the mesh (off by default; [`crate::RefineOptions::curvature_from_views`] has the
+    /// measurements). The mesh being fitted is wrong where the sizing matters most: it shows
+    /// noise as curvature on smooth parts (short edges that keep the noise) and has not yet
+    /// grown the detail the views show (long edges that cannot hold it). The views'
+    /// curvature is the angle between target normals [`VIEW_CURVATURE_STENCIL`] pixels
+    /// either side of a pixel (fewer where the mask ends sooner), per pixel of distance, the
+    /// larger of the two image axes, foreshortening undone, divided by the pixel's size in
+    /// world units at the vertex; averaged over the pixels where the current mesh's
+    /// triangles around the vertex are visible (the renders of the fit say which surface a
+    /// pixel shows), then the largest over the views. It replaces the mesh's curvature,
+    /// except near a silhouette, where the views show least of the surface's turn and it
+    /// only bounds the mesh's from below. Pixels seen at a grazing angle (`|cos| < 0.5`) or
+    /// outside the masks count for nothing; a vertex no view shows keeps the mesh's
+    /// curvature.
+    pub curvature_from_views: bool,
     /// Start every vertex's target edge length at the mean length of its edges in the start
     /// mesh (clamped to `edge_len_lims`) instead of at the upper limit (`false` by default).
     /// For a start mesh that already fits the views (the refinement): starting at the upper
@@ -108,6 +125,7 @@ impl Default for CoarseOptions {
             remesh_repairs: false,
             normal_mask_erosion: 0,
             curvature_tolerance: None,
+            curvature_from_views: false,
             start_at_mesh_edge_lengths: false,
         }
     }
@@ -207,6 +225,14 @@ impl CoarseOptions {
         self
     }
 
+    /// These options with [`curvature_from_views`](Self::curvature_from_views) set to
+    /// `value`.
+    #[must_use]
+    pub fn with_curvature_from_views(mut self, value: bool) -> Self {
+        self.curvature_from_views = value;
+        self
+    }
+
     /// These options with [`start_at_mesh_edge_lengths`](Self::start_at_mesh_edge_lengths)
     /// set to `value`.
     #[must_use]
@@ -261,13 +287,7 @@ pub fn silhouette_sphere(views: &ViewSet, subdivisions: u32) -> Result<Mesh> {
 /// The world-space height spanned by the image of the camera that sees `p` at the finest
 /// scale (orthographic: `2·half_height`; perspective: `2·depth·tan(fov/2)`).
 fn finest_view_span(cameras: &[Camera], p: glam::Vec3) -> f32 {
-    cameras
-        .iter()
-        .map(|c| match c.projection {
-            Projection::Orthographic { half_height } => 2.0 * half_height,
-            Projection::Perspective { fov_y } => 2.0 * c.depth(p).max(1e-3) * (0.5 * fov_y).tan(),
-        })
-        .fold(f32::INFINITY, f32::min)
+    cameras.iter().map(|c| image_span(c, p)).fold(f32::INFINITY, f32::min)
 }
 
 /// Fits `init` (a closed mesh in the rig's world frame) to the normal maps and masks of
@@ -314,10 +334,14 @@ pub fn reconstruct_coarse(
     let mut report = CoarseReport { losses: Vec::new(), triangle_counts: Vec::new(), seconds: 0.0 };
     let mut lr = options.lr;
     for _ in 0..options.steps {
-        let (loss, grad_positions) = fit.loss_and_gradient(opt.positions(), opt.triangles())?;
+        let FitEvaluation { loss, gradient: grad_positions, curvature } =
+            fit.loss_gradient_and_curvature(opt.positions(), opt.triangles())?;
         report.losses.push(loss);
         if !loss.is_finite() {
             return Err(Error::invalid("views", format!("finite normal and mask values (the loss became {loss})")));
+        }
+        if let Some(curvature) = curvature {
+            opt.set_curvature_hint(curvature)?;
         }
         opt.step(&grad_positions)?;
         opt.remesh();
@@ -349,6 +373,9 @@ pub(crate) struct ViewFit<'a> {
     mask_weight: f32,
     /// Per view: target normals (3 per pixel), mask, normal-loss weight.
     targets: Vec<(Vec<f32>, Vec<f32>, Vec<f32>)>,
+    /// Per view, with [`CoarseOptions::curvature_from_views`] and a curvature tolerance: the
+    /// target normals' angular change per pixel.
+    view_curvature: Option<Vec<NormalChange>>,
 }
 
 impl<'a> ViewFit<'a> {
@@ -375,12 +402,19 @@ impl<'a> ViewFit<'a> {
                 (v.normal.data().to_vec(), v.mask.data().to_vec(), weight)
             })
             .collect();
+        let view_curvature = (options.curvature_from_views && options.curvature_tolerance.is_some()).then(|| {
+            views
+                .iter()
+                .map(|(rv, v)| normal_change_per_pixel(v.normal.data(), v.mask.data(), size as usize, &rv.camera))
+                .collect()
+        });
         Ok(ViewFit {
             rig: views.rig(),
             size,
             normal_weight: options.normal_weight,
             mask_weight: options.mask_weight,
             targets,
+            view_curvature,
         })
     }
 
@@ -392,6 +426,18 @@ impl<'a> ViewFit<'a> {
         positions: &[[f32; 3]],
         triangles: &[[u32; 3]],
     ) -> Result<(f32, Vec<[f32; 3]>)> {
+        let eval = self.loss_gradient_and_curvature(positions, triangles)?;
+        Ok((eval.loss, eval.gradient))
+    }
+
+    /// [`ViewFit::loss_and_gradient`] and, with [`CoarseOptions::curvature_from_views`], the
+    /// curvature the views show at every vertex (1 / world units; NaN where no view shows
+    /// it), from the same renders.
+    pub(crate) fn loss_gradient_and_curvature(
+        &self,
+        positions: &[[f32; 3]],
+        triangles: &[[u32; 3]],
+    ) -> Result<FitEvaluation> {
         let mesh = Mesh::new(positions.to_vec(), triangles.to_vec())?;
         let normals = vertex_normals(positions, triangles)?;
         let attributes: Vec<f32> = normals.iter().flat_map(|n| [n[0], n[1], n[2], 1.0]).collect();
@@ -443,7 +489,144 @@ impl<'a> ViewFit<'a> {
         for (g, n) in grad_positions.iter_mut().zip(through_normals) {
             *g = [g[0] + n[0], g[1] + n[1], g[2] + n[2]];
         }
-        Ok((loss, grad_positions))
+        let curvature = self.view_curvature.as_ref().map(|per_view| {
+            let mut curvature = vec![f32::NAN; positions.len()];
+            let mut near_silhouette = vec![false; positions.len()];
+            for (raster, change) in rasters.iter().zip(per_view) {
+                // Mean change per pixel over the pixels where each vertex's triangles show.
+                let mut sum = vec![0.0f32; positions.len()];
+                let mut count = vec![0u32; positions.len()];
+                for (p, &t) in raster.triangle.iter().enumerate() {
+                    let c = change.per_pixel[p];
+                    if t == w3d_raster::NO_TRIANGLE || c.is_nan() {
+                        continue;
+                    }
+                    for v in triangles[t as usize] {
+                        sum[v as usize] += c;
+                        count[v as usize] += 1;
+                        near_silhouette[v as usize] |= change.near_silhouette[p];
+                    }
+                }
+                for (v, kappa) in curvature.iter_mut().enumerate() {
+                    if count[v] < 2 {
+                        continue;
+                    }
+                    let pixel = image_span(&raster.camera, Vec3::from(positions[v])) / self.size as f32;
+                    let k = sum[v] / count[v] as f32 / pixel;
+                    *kappa = if kappa.is_nan() { k } else { kappa.max(k) };
+                }
+            }
+            curvature
+                .iter()
+                .zip(&near_silhouette)
+                .map(|(&k, &near)| match (k.is_nan(), near) {
+                    (true, _) => CurvatureHint::Mesh,
+                    (false, true) => CurvatureHint::AtLeast(k),
+                    (false, false) => CurvatureHint::Replace(k),
+                })
+                .collect()
+        });
+        Ok(FitEvaluation { loss, gradient: grad_positions, curvature })
+    }
+}
+
+/// What [`ViewFit::loss_gradient_and_curvature`] finds for one mesh.
+pub(crate) struct FitEvaluation {
+    /// The loss over all views.
+    pub(crate) loss: f32,
+    /// Its gradient with respect to every vertex position.
+    pub(crate) gradient: Vec<[f32; 3]>,
+    /// Per vertex, with [`CoarseOptions::curvature_from_views`] and a curvature tolerance:
+    /// the curvature the views show (1 / world units) in place of the mesh's, or as a floor
+    /// under it near a silhouette, or nothing where no view shows the vertex.
+    pub(crate) curvature: Option<Vec<CurvatureHint>>,
+}
+
+/// Pixels either side of a pixel whose target normals give the views' curvature
+/// ([`CoarseOptions::curvature_from_views`]): far enough apart that the noise of a
+/// generated normal map averages out (σ = 0.05 per pixel reads as about 0.012 rad per
+/// pixel), close enough to resolve the refinement's shortest edges (0.01, about 5 pixels
+/// at 512²).
+pub const VIEW_CURVATURE_STENCIL: usize = 3;
+
+/// The angular change of one view's target normals per pixel
+/// ([`normal_change_per_pixel`]).
+struct NormalChange {
+    /// Radians per pixel, foreshortening undone; NaN where unknown.
+    per_pixel: Vec<f32>,
+    /// Whether the stencil had to shrink because the mask ends within
+    /// [`VIEW_CURVATURE_STENCIL`] pixels: a silhouette, where the views show least of the
+    /// surface's turn (a thin rim seen edge-on is a line a few pixels thick) and the
+    /// curvature only bounds the mesh's from below.
+    near_silhouette: Vec<bool>,
+}
+
+/// Per pixel of a `size × size` normal map (unit world normals, 3 per pixel) and its mask:
+/// the angle between the normals [`VIEW_CURVATURE_STENCIL`] pixels either side (fewer where
+/// the mask ends sooner, at least one), per pixel of distance, the larger of the two image
+/// axes, times `|cos|` of the normal with `camera`'s ray through the pixel. The factor undoes
+/// the foreshortening: where the surface turns away from the ray by θ, a pixel across the
+/// turn spans `1 / cos θ` times more surface, so on a sphere every pixel reads the same (with
+/// the camera axis instead of the ray, the perspective rig's 45° views read a sphere 25 %
+/// too curved). NaN where the pixel is seen at a grazing angle (`|cos| < 0.5`) or outside
+/// the mask, or where no axis has a neighbour inside the mask on both sides.
+fn normal_change_per_pixel(normals: &[f32], mask: &[f32], size: usize, camera: &Camera) -> NormalChange {
+    let k = VIEW_CURVATURE_STENCIL;
+    let normal = |x: usize, y: usize| -> Option<Vec3> {
+        let p = y * size + x;
+        (mask[p] >= 0.5).then(|| Vec3::new(normals[3 * p], normals[3 * p + 1], normals[3 * p + 2]))
+    };
+    // The angle between unit vectors from their chord (exact near 0, unlike acos).
+    let angle = |a: Vec3, b: Vec3| 2.0 * (0.5 * a.distance(b)).min(1.0).asin();
+    let mut per_pixel = vec![f32::NAN; size * size];
+    let mut near_silhouette = vec![false; size * size];
+    for y in 0..size {
+        for x in 0..size {
+            let Some(n) = normal(x, y) else { continue };
+            let ray = camera.ray(x as f32 + 0.5, y as f32 + 0.5, size as u32, size as u32);
+            let cos = n.dot(ray.direction).abs();
+            if cos < 0.5 {
+                continue;
+            }
+            // Per axis, the stencil shrinks to the farthest pixels still inside the mask on
+            // each side, at least one: across a part a few pixels thick (a wing's rim seen
+            // edge-on) the full stencil would leave the mask on both sides.
+            let mut change = f32::NAN;
+            for (dx, dy) in [(1isize, 0isize), (0, 1)] {
+                let step = |sign: isize, j: usize| -> Option<(usize, usize)> {
+                    let (px, py) = (x as isize + sign * dx * j as isize, y as isize + sign * dy * j as isize);
+                    let inside = px >= 0 && py >= 0 && px < size as isize && py < size as isize;
+                    inside.then_some((px as usize, py as usize))
+                };
+                // The farthest reach on one side before the mask (or the image) ends.
+                let reach = |sign: isize| -> Option<(usize, Vec3)> {
+                    let mut last = None;
+                    for j in 1..=k {
+                        match step(sign, j).and_then(|(px, py)| normal(px, py)) {
+                            Some(n) => last = Some((j, n)),
+                            None => break,
+                        }
+                    }
+                    last
+                };
+                if let (Some((ja, a)), Some((jb, b))) = (reach(-1), reach(1)) {
+                    let c = angle(a, b) / (ja + jb) as f32;
+                    change = if change.is_nan() { c } else { change.max(c) };
+                    near_silhouette[y * size + x] |= ja + jb < 2 * k;
+                }
+            }
+            per_pixel[y * size + x] = change * cos;
+        }
+    }
+    NormalChange { per_pixel, near_silhouette }
+}
+
+/// The world-space height spanned by `camera`'s image at `p` (orthographic:
+/// `2·half_height`; perspective: `2·depth·tan(fov/2)`).
+fn image_span(camera: &Camera, p: Vec3) -> f32 {
+    match camera.projection {
+        Projection::Orthographic { half_height } => 2.0 * half_height,
+        Projection::Perspective { fov_y } => 2.0 * camera.depth(p).max(1e-3) * (0.5 * fov_y).tan(),
     }
 }
 
@@ -494,7 +677,68 @@ fn mean_edge_lengths(mesh: &Mesh, (lo, hi): (f32, f32)) -> Vec<f32> {
 
 #[cfg(test)]
 mod tests {
-    use super::{eroded_mask, mean_edge_lengths};
+    use super::{CoarseOptions, CurvatureHint, ViewFit, eroded_mask, mean_edge_lengths};
+    use glam::Vec3;
+    use w3d_core::ViewRig;
+
+    /// A sphere's normal curvature is `1 / r` in every direction; the per-vertex curvature of
+    /// [`CoarseOptions::curvature_from_views`] reads it on every vertex a view shows not too
+    /// obliquely, in both rigs (orthographic and perspective image spans; without the
+    /// foreshortening factor the vertex facing the front camera read 1.45 / r, from the view
+    /// 45° beside it); and there is none without a curvature tolerance.
+    #[test]
+    fn the_views_show_a_sphere_curvature_at_its_vertices() {
+        let r = 0.35f32;
+        let sphere = w3d_remesh::icosphere(4, r).unwrap();
+        for rig in [ViewRig::wonder3d_ortho(), ViewRig::wonder3d_persp()] {
+            let views = w3d_raster::render_oracle_views(&sphere, &rig, 256).unwrap();
+            let options = CoarseOptions::default().with_curvature_tolerance(Some(0.002));
+            let fit = ViewFit::new(&views, &options).unwrap();
+            let eval = fit.loss_gradient_and_curvature(sphere.positions(), sphere.triangles()).unwrap();
+            let curvature: Vec<f32> = eval
+                .curvature
+                .expect("curvature from the views")
+                .iter()
+                .map(|h| match h {
+                    CurvatureHint::Replace(k) | CurvatureHint::AtLeast(k) => *k,
+                    CurvatureHint::Mesh => f32::NAN,
+                })
+                .collect();
+            let known: Vec<f32> = curvature.iter().copied().filter(|k| !k.is_nan()).collect();
+            // The six views circle the equator: all but the caps near the poles, seen only at
+            // grazing angles, read a curvature (87 % of the vertices in the orthographic rig,
+            // 76 % in the perspective one, whose cameras see less of a near sphere).
+            assert!(known.len() * 10 >= curvature.len() * 7, "{}: {} of {}", rig.name, known.len(), curvature.len());
+            // Within 25 % everywhere (the low end near the grazing limit, where the stencil
+            // reaches more oblique pixels), within 3 % at the median.
+            let mut sorted = known.clone();
+            sorted.sort_by(f32::total_cmp);
+            let median = sorted[sorted.len() / 2] * r;
+            assert!((median - 1.0).abs() < 0.03, "{}: median {median} / r", rig.name);
+            for k in &known {
+                assert!((0.75 / r..=1.1 / r).contains(k), "{}: curvature {k}, 1/r = {}", rig.name, 1.0 / r);
+            }
+            // The vertex facing the front camera reads 1 / r.
+            let front = rig.cameras().next().unwrap().forward();
+            let (v, _) = sphere
+                .positions()
+                .iter()
+                .enumerate()
+                .map(|(v, p)| (v, Vec3::from(*p).normalize().dot(-front)))
+                .fold((0, f32::MIN), |a, b| if b.1 > a.1 { b } else { a });
+            assert!((curvature[v] * r - 1.0).abs() < 0.05, "{}: facing vertex {}", rig.name, curvature[v] * r);
+            // Without a tolerance, or with the option off, there is none.
+            for options in [CoarseOptions::default(), options.with_curvature_from_views(false)] {
+                let fit = ViewFit::new(&views, &options).unwrap();
+                assert!(
+                    fit.loss_gradient_and_curvature(sphere.positions(), sphere.triangles())
+                        .unwrap()
+                        .curvature
+                        .is_none()
+                );
+            }
+        }
+    }
 
     /// A square split into two triangles (sides 1, diagonal √2): each corner's mean over its
     /// edges, then the limits.

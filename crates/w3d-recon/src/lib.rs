@@ -52,7 +52,9 @@ mod polish;
 mod refine;
 mod untangle;
 
-pub use coarse::{CoarseOptions, CoarseReport, reconstruct_coarse, silhouette_sphere, view_loss};
+pub use coarse::{
+    CoarseOptions, CoarseReport, VIEW_CURVATURE_STENCIL, reconstruct_coarse, silhouette_sphere, view_loss,
+};
 pub use init::{InitChoice, InitOptions, InitReport, initial_mesh, visual_hull_mesh};
 pub use pipeline::{
     COARSE_RESEEDS, CRUMPLED_MIN_PAIRS, CRUMPLED_PAIRS_PER_TRIANGLE, Preset, Progress, ReconOptions, ReconReport,

@@ -14,7 +14,9 @@
 //! learning rate decayed by 0.99 per step as in the reference; target edge lengths between
 //! 0.01 and 0.03 (bounded below by two pixels of the views, as in the coarse stage) that
 //! follow the shape: cut short where the surface is curved, so that an edge's chord stays
-//! within 0.002 of it ([`RefineOptions::curvature_tolerance`]), long where it is flat; and the
+//! within 0.002 of it ([`RefineOptions::curvature_tolerance`]), long where it is flat (the
+//! curvature of the mesh being fitted; [`RefineOptions::curvature_from_views`] reads it from
+//! the enhanced normal maps instead); and the
 //! normal loss kept 2 pixels inside the silhouette (a 5×5 erosion of the target masks, as in
 //! the reference), where a generative model's normals are least reliable. The reference's
 //! edge lengths, 0.005–0.008, gave spot 105–125 k triangles and 42–46 s per iteration at 512²
@@ -76,6 +78,14 @@ pub struct RefineOptions {
     /// sizing to the remesher's speed controller, which shortens the edges wherever the
     /// vertices have stopped moving, whatever the shape.
     pub curvature_tolerance: Option<f32>,
+    /// Size by the curvature the enhanced normal maps show rather than the mesh's own
+    /// ([`CoarseOptions::curvature_from_views`]; off by default). Measured with the oracle
+    /// enhancer (`docs/accuracy.md`, "Curvature read from the enhanced views"): fewer
+    /// triangles for the same or better accuracy on the orthographic rig (koala surface CD
+    /// 0.0021 → 0.0015 with 12 % fewer triangles), but in the perspective rig the thin
+    /// plane's fit drifts under the identity enhancer (CD +14 %, against +4 % with the
+    /// mesh's curvature), so it is not the default.
+    pub curvature_from_views: bool,
     /// Weight of the Laplacian regulariser inside the remeshing optimiser's update.
     pub laplacian_weight: f32,
     /// Pixels the target masks are eroded by for the normal loss (see
@@ -107,6 +117,7 @@ impl Default for RefineOptions {
             lr_decay: 0.99,
             edge_len_lims: (0.01, 0.03),
             curvature_tolerance: Some(0.002),
+            curvature_from_views: false,
             laplacian_weight: CoarseOptions::default().laplacian_weight,
             normal_mask_erosion: 2,
             untangle_rounds: 400,
@@ -144,6 +155,13 @@ impl RefineOptions {
     #[must_use]
     pub fn with_edge_len_lims(mut self, value: (f32, f32)) -> Self {
         self.edge_len_lims = value;
+        self
+    }
+
+    /// These options with [`curvature_from_views`](Self::curvature_from_views) set to `value`.
+    #[must_use]
+    pub fn with_curvature_from_views(mut self, value: bool) -> Self {
+        self.curvature_from_views = value;
         self
     }
 
@@ -204,6 +222,7 @@ impl RefineOptions {
             .with_lr_decay(self.lr_decay)
             .with_edge_len_lims(self.edge_len_lims)
             .with_curvature_tolerance(self.curvature_tolerance)
+            .with_curvature_from_views(self.curvature_from_views)
             .with_start_at_mesh_edge_lengths(true)
             .with_laplacian_weight(self.laplacian_weight)
             .with_normal_mask_erosion(self.normal_mask_erosion)

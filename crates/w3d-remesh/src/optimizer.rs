@@ -92,6 +92,9 @@ pub struct MeshOptimizer {
     steps: u64,
     remeshes: u64,
     min_length_field: Option<LengthField>,
+    /// Per current vertex, what to size it by instead of the mesh's curvature alone; see
+    /// [`MeshOptimizer::set_curvature_hint`]. Dropped by the next remesh.
+    curvature_hint: Option<Vec<CurvatureHint>>,
 }
 
 impl std::fmt::Debug for MeshOptimizer {
@@ -103,6 +106,7 @@ impl std::fmt::Debug for MeshOptimizer {
             .field("steps", &self.steps)
             .field("remeshes", &self.remeshes)
             .field("min_length_field", &self.min_length_field.is_some())
+            .field("curvature_hint", &self.curvature_hint.is_some())
             .finish()
     }
 }
@@ -152,7 +156,16 @@ impl MeshOptimizer {
             nu: vec![0.0; n],
             ref_len: vec![options.edge_len_lims.1; n],
         };
-        Ok(MeshOptimizer { options, state, triangles, edges, steps: 0, remeshes: 0, min_length_field: None })
+        Ok(MeshOptimizer {
+            options,
+            state,
+            triangles,
+            edges,
+            steps: 0,
+            remeshes: 0,
+            min_length_field: None,
+            curvature_hint: None,
+        })
     }
 
     /// [`MeshOptimizer::new`] from a [`Mesh`] (its attributes are dropped).
@@ -224,11 +237,13 @@ impl MeshOptimizer {
         // With a curvature tolerance, a vertex moves by at most `lr` times twice its capped
         // edge length (`RemeshOptions::curvature_tolerance`).
         let step_lengths: Vec<f32> = match o.curvature_tolerance {
-            Some(tol) => curvature_length_caps(&s.positions, &self.triangles, &self.edges, tol)
-                .iter()
-                .zip(&s.ref_len)
-                .map(|(cap, &len)| len.min((CURVATURE_STEP_FACTOR * cap).max(o.edge_len_lims.0)))
-                .collect(),
+            Some(tol) => {
+                curvature_length_caps(&s.positions, &self.triangles, &self.edges, self.curvature_hint.as_deref(), tol)
+                    .iter()
+                    .zip(&s.ref_len)
+                    .map(|(cap, &len)| len.min((CURVATURE_STEP_FACTOR * cap).max(o.edge_len_lims.0)))
+                    .collect()
+            }
             None => Vec::new(),
         };
         let (a1, b1) = lerp_unbiased_weights(o.betas[0], t);
@@ -299,9 +314,17 @@ impl MeshOptimizer {
     pub fn remesh_now(&mut self) -> RemeshStats {
         let tol = self.options.edge_len_tol;
         let caps = match self.options.curvature_tolerance {
-            Some(tol) => curvature_length_caps(&self.state.positions, &self.triangles, &self.edges, tol),
+            Some(tol) => curvature_length_caps(
+                &self.state.positions,
+                &self.triangles,
+                &self.edges,
+                self.curvature_hint.as_deref(),
+                tol,
+            ),
             None => Vec::new(),
         };
+        // The hint is per vertex of the mesh as it was: the remesh renumbers them.
+        self.curvature_hint = None;
         let lo = self.options.edge_len_lims.0;
         let target: Vec<f32> =
             self.state.ref_len.iter().enumerate().map(|(v, &r)| caps.get(v).map_or(r, |c| r.min(c.max(lo)))).collect();
@@ -433,6 +456,31 @@ impl MeshOptimizer {
         self.min_length_field = Some(Box::new(field));
     }
 
+    /// What to size each current vertex's edges by instead of the mesh's own curvature
+    /// ([`RemeshOptions::curvature_tolerance`]), where something knows the shape better than
+    /// the mesh does — such as the target images of a fit, which show the surface's
+    /// curvature before the mesh has it. It applies to the next [`MeshOptimizer::step`] and
+    /// remesh, then is dropped (a remesh renumbers the vertices): set it again before every
+    /// step. Without a curvature tolerance it has no effect.
+    ///
+    /// Errors: not one hint per current vertex, or a curvature that is negative or not
+    /// finite.
+    pub fn set_curvature_hint(&mut self, hints: Vec<CurvatureHint>) -> Result<()> {
+        let n = self.state.positions.len();
+        if hints.len() != n {
+            return Err(Error::invalid("curvature", format!("one hint per current vertex ({n}), got {}", hints.len())));
+        }
+        for (i, hint) in hints.iter().enumerate() {
+            if let CurvatureHint::Replace(k) | CurvatureHint::AtLeast(k) = *hint
+                && !(k.is_finite() && k >= 0.0)
+            {
+                return Err(Error::invalid(format!("curvature[{i}]"), format!("a finite curvature ≥ 0, got {k}")));
+            }
+        }
+        self.curvature_hint = Some(hints);
+        Ok(())
+    }
+
     /// Removes the minimum-length field.
     pub fn clear_min_edge_length_field(&mut self) {
         self.min_length_field = None;
@@ -458,16 +506,35 @@ impl MeshOptimizer {
     }
 }
 
+/// What [`MeshOptimizer::set_curvature_hint`] sizes one vertex by (curvatures in 1 / mesh
+/// units).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum CurvatureHint {
+    /// The mesh's own curvature (as without a hint).
+    Mesh,
+    /// This curvature instead of the mesh's.
+    Replace(f32),
+    /// The larger of this curvature and the mesh's.
+    AtLeast(f32),
+}
+
 /// How far a vertex whose target edge length the curvature caps may still move per step, in
 /// capped edge lengths (times the learning rate): see `RemeshOptions::curvature_tolerance`.
 const CURVATURE_STEP_FACTOR: f32 = 2.0;
 
-/// Per-vertex caps `√(8 · tol / κ)` on the target edge length, `κ` the largest normal
-/// curvature of the mesh at the vertex: over its edges `2 |n · e| / |e|²` (the circle through
-/// both ends tangent to the vertex's area-weighted normal), averaged with the same value of
-/// its neighbours so that one noisy edge does not decide. An edge of that length on a surface
-/// of curvature `κ` departs from it by about `tol` at its middle (the sagitta `κ l² / 8`).
-fn curvature_length_caps(positions: &[[f32; 3]], triangles: &[[u32; 3]], edges: &[[u32; 2]], tol: f32) -> Vec<f32> {
+/// Per-vertex caps `√(8 · tol / κ)` on the target edge length, `κ` as the vertex's entry of
+/// `hint` says (without one, the mesh's), the mesh's being the largest normal curvature at the
+/// vertex: over its edges `2 |n · e| / |e|²` (the circle through both ends tangent to the
+/// vertex's area-weighted normal), averaged with the same value of its neighbours so that one
+/// noisy edge does not decide. An edge of that length on a surface of curvature `κ` departs
+/// from it by about `tol` at its middle (the sagitta `κ l² / 8`).
+fn curvature_length_caps(
+    positions: &[[f32; 3]],
+    triangles: &[[u32; 3]],
+    edges: &[[u32; 2]],
+    hint: Option<&[CurvatureHint]>,
+    tol: f32,
+) -> Vec<f32> {
     use glam::Vec3;
     let n = positions.len();
     let p = |v: u32| Vec3::from(positions[v as usize]);
@@ -500,5 +567,17 @@ fn curvature_length_caps(positions: &[[f32; 3]], triangles: &[[u32; 3]], edges: 
         count[a as usize] += 1;
         count[b as usize] += 1;
     }
-    sum.iter().zip(&count).map(|(k, c)| (8.0 * tol / (k / *c as f32).max(1e-12)).sqrt()).collect()
+    sum.iter()
+        .zip(&count)
+        .enumerate()
+        .map(|(v, (k, c))| {
+            let mesh = k / *c as f32;
+            let kappa = match hint.and_then(|h| h.get(v)) {
+                Some(CurvatureHint::Replace(h)) => *h,
+                Some(CurvatureHint::AtLeast(h)) => h.max(mesh),
+                Some(CurvatureHint::Mesh) | None => mesh,
+            };
+            (8.0 * tol / kappa.max(1e-12)).sqrt()
+        })
+        .collect()
 }

@@ -69,6 +69,30 @@ fn the_oracle_enhancer_sharpens_geometry_and_texture_and_identity_does_no_harm()
     assert_eq!(identity.report.enhancer, "identity");
 }
 
+/// The opt-in sizing by the curvature the enhanced views show
+/// (`RefineOptions::curvature_from_views`) gives another mesh, as closed and uncrossed, that
+/// still gains on the coarse one.
+#[test]
+fn sizing_by_the_views_curvature_refines_too() {
+    let (spot, views, geometry, _) = coarse();
+    let cd_before = chamfer(&geometry, &spot);
+    let mesh_options = MeshRefineOptions::default().with_steps(60).with_edge_len_lims((0.012, 0.03));
+    let run = |from_views: bool| {
+        let options = options().with_mesh(mesh_options.with_curvature_from_views(from_views));
+        refine(&geometry, &views, &OracleEnhancer::new(spot.clone()), &options, &mut |_| {}).unwrap()
+    };
+    let (by_mesh, by_views) = (run(false), run(true));
+    let cd = chamfer(&by_views.geometry, &spot);
+    eprintln!(
+        "sized by the mesh: {} triangles; by the views: {} triangles, CD {cd_before:.5} -> {cd:.5}",
+        by_mesh.geometry.triangle_count(),
+        by_views.geometry.triangle_count()
+    );
+    assert_ne!(by_mesh.geometry.triangle_count(), by_views.geometry.triangle_count());
+    assert!(by_views.geometry.topology().is_watertight() && by_views.geometry.self_intersections().is_empty());
+    assert!(cd < 0.9 * cd_before, "CD {cd_before:.5} -> {cd:.5}");
+}
+
 #[test]
 fn no_iterations_keep_the_mesh_and_a_wrong_enhancer_is_named() {
     let spot = wonder3d::demo::bundled_spot().unwrap();
