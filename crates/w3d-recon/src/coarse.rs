@@ -692,7 +692,8 @@ mod tests {
         let sphere = w3d_remesh::icosphere(4, r).unwrap();
         for rig in [ViewRig::wonder3d_ortho(), ViewRig::wonder3d_persp()] {
             let views = w3d_raster::render_oracle_views(&sphere, &rig, 256).unwrap();
-            let options = CoarseOptions::default().with_curvature_tolerance(Some(0.002));
+            let options =
+                CoarseOptions::default().with_curvature_tolerance(Some(0.002)).with_curvature_from_views(true);
             let fit = ViewFit::new(&views, &options).unwrap();
             let eval = fit.loss_gradient_and_curvature(sphere.positions(), sphere.triangles()).unwrap();
             let curvature: Vec<f32> = eval
@@ -727,8 +728,9 @@ mod tests {
                 .map(|(v, p)| (v, Vec3::from(*p).normalize().dot(-front)))
                 .fold((0, f32::MIN), |a, b| if b.1 > a.1 { b } else { a });
             assert!((curvature[v] * r - 1.0).abs() < 0.05, "{}: facing vertex {}", rig.name, curvature[v] * r);
-            // Without a tolerance, or with the option off, there is none.
-            for options in [CoarseOptions::default(), options.with_curvature_from_views(false)] {
+            // Without a tolerance, or with the option off (the default), there is none.
+            let no_tolerance = CoarseOptions::default().with_curvature_from_views(true);
+            for options in [no_tolerance, options.with_curvature_from_views(false)] {
                 let fit = ViewFit::new(&views, &options).unwrap();
                 assert!(
                     fit.loss_gradient_and_curvature(sphere.positions(), sphere.triangles())
