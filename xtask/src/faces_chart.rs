@@ -19,6 +19,10 @@
 //! the goal (refined ≤ 50 % of uniform at equal CD); the last column is the smallest
 //! such share along the simplification curve. Writes `target/bench/faces.json`, the chart,
 //! and prints the markdown table of `docs/accuracy.md`; `--replot` redraws both from the JSON.
+//! `--curvature TOL|views:TOL|off` measures a variant of the curvature bound into
+//! `target/bench/faces_variant.json` (the chart stays the defaults'), and `--uniform-from
+//! JSON` takes the uniform meshes' points from an earlier run instead of fitting them again
+//! (two thirds of the time).
 
 use std::time::Instant;
 
@@ -53,17 +57,18 @@ fn point(truth: &Mesh, geometry: &Mesh, seconds: f64) -> Result<Value, String> {
     Ok(json!({ "surface_chamfer": surface, "chamfer": cd, "triangles": geometry.triangle_count(), "seconds": seconds }))
 }
 
-/// Two oracle iterations from `coarse` with the mesh refinement's edge-length limits `lims`
-/// and simplification tolerance `simplify`: the geometry and the seconds it took.
+/// Two oracle iterations from `coarse` with the mesh refinement `base` given the edge-length
+/// limits `lims` and simplification tolerance `simplify`: the geometry and the seconds it
+/// took.
 fn refined(
     truth: &Mesh,
     coarse: &Mesh,
     views: &ViewSet,
     size: u32,
-    lims: (f32, f32),
-    simplify: Option<f32>,
+    base: wonder3d::recon::RefineOptions,
+    (lims, simplify): ((f32, f32), Option<f32>),
 ) -> Result<(Mesh, f64), String> {
-    let mesh = wonder3d::recon::RefineOptions::default().with_edge_len_lims(lims).with_simplify_tolerance(simplify);
+    let mesh = base.with_edge_len_lims(lims).with_simplify_tolerance(simplify);
     let options = RefineOptions::default().with_size(size).with_mesh(mesh).with_iterations(ITERATIONS);
     let t = Instant::now();
     let out =
@@ -166,8 +171,38 @@ fn row_markdown(row: &Value) -> String {
     )
 }
 
-pub(crate) fn run(meshes: Option<&str>, size: u32) -> Result<(), String> {
+/// The uniform points of `mesh` in the faces JSON at `path`.
+fn uniform_points_from(path: &std::path::Path, mesh: &str) -> Result<Vec<Value>, String> {
+    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let report: Value = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+    let row = report["rows"].as_array().into_iter().flatten().find(|r| r["mesh"] == mesh);
+    let points = row.and_then(|r| r["uniform"].as_array()).cloned().unwrap_or_default();
+    let edges: Vec<f32> = points.iter().filter_map(|p| p["edge_length"].as_f64()).map(|e| e as f32).collect();
+    if edges != UNIFORM {
+        return Err(format!(
+            "{}: no uniform points of {mesh} at the edge lengths {UNIFORM:?} (found {edges:?})",
+            path.display()
+        ));
+    }
+    Ok(points)
+}
+
+pub(crate) fn run(
+    meshes: Option<&str>,
+    size: u32,
+    curvature: Option<&str>,
+    uniform_from: Option<&std::path::Path>,
+) -> Result<(), String> {
+    let base = crate::refine_table::mesh_options(None, None, None, None, curvature)?;
+    let variant = curvature.is_some();
     let wanted: Option<Vec<&str>> = meshes.map(|m| m.split(',').collect());
+    // Every reused uniform curve is read before any fitting starts.
+    let mut reused = std::collections::HashMap::new();
+    if let Some(path) = uniform_from {
+        for (name, _) in OBJECTS.iter().filter(|(n, _)| wanted.as_ref().is_none_or(|w| w.contains(n))) {
+            reused.insert(*name, uniform_points_from(path, name)?);
+        }
+    }
     let out_svg = crate::workspace_root().join("docs").join("faces_accuracy.svg");
     let bench = crate::target_dir().join("bench");
     std::fs::create_dir_all(&bench).map_err(|e| format!("{}: {e}", bench.display()))?;
@@ -187,9 +222,9 @@ pub(crate) fn run(meshes: Option<&str>, size: u32) -> Result<(), String> {
         let coarse = Pipeline::new().from_views(&views, &mut |_| {}).map_err(|e| e.to_string())?;
         let coarse_point = point(&truth, &coarse.geometry, t.elapsed().as_secs_f64())?;
         let (mesh, seconds) =
-            refined(&truth, &coarse.geometry, &views, size, default_lims, defaults.simplify_tolerance)?;
+            refined(&truth, &coarse.geometry, &views, size, base, (default_lims, defaults.simplify_tolerance))?;
         let refined_point = point(&truth, &mesh, seconds)?;
-        let (adaptive, seconds) = refined(&truth, &coarse.geometry, &views, size, default_lims, None)?;
+        let (adaptive, seconds) = refined(&truth, &coarse.geometry, &views, size, base, (default_lims, None))?;
         let adaptive_point = point(&truth, &adaptive, seconds)?;
         let mut simplified = Vec::new();
         for tolerance in TOLERANCES {
@@ -201,9 +236,11 @@ pub(crate) fn run(meshes: Option<&str>, size: u32) -> Result<(), String> {
             p["kept_unsimplified"] = json!(report.is_none());
             simplified.push(p);
         }
-        let mut uniform = Vec::new();
-        for e in UNIFORM {
-            let (mesh, seconds) = refined(&truth, &coarse.geometry, &views, size, (e, e), None)?;
+        let mut uniform = reused.remove(name).unwrap_or_default();
+        for e in UNIFORM.into_iter().filter(|_| uniform_from.is_none()) {
+            // The uniform meshes are the default refinement's with the limits pinned, whatever
+            // the variant (pinned limits leave the curvature bound nothing to do).
+            let (mesh, seconds) = refined(&truth, &coarse.geometry, &views, size, defaults, ((e, e), None))?;
             let mut p = point(&truth, &mesh, seconds)?;
             p["edge_length"] = json!(e);
             uniform.push(p);
@@ -219,8 +256,17 @@ pub(crate) fn run(meshes: Option<&str>, size: u32) -> Result<(), String> {
     if rows.is_empty() {
         return Err(format!("--meshes {meshes:?}: none of {:?}", OBJECTS.map(|o| o.0)));
     }
+    let mut command = format!("cargo xtask faces-chart --size {size}");
+    if let Some(c) = curvature {
+        command.push_str(&format!(" --curvature {c}"));
+    }
+    if let Some(p) = uniform_from {
+        command.push_str(&format!(" --uniform-from {}", p.display()));
+    }
     let report = json!({
-        "command": format!("cargo xtask faces-chart --size {size}"),
+        "command": command,
+        "curvature_tolerance": base.curvature_tolerance,
+        "curvature_from_views": base.curvature_from_views,
         "iterations": ITERATIONS,
         "uniform_edge_lengths": UNIFORM,
         "simplify_tolerances": TOLERANCES,
@@ -232,12 +278,16 @@ pub(crate) fn run(meshes: Option<&str>, size: u32) -> Result<(), String> {
         "seconds": start.elapsed().as_secs_f64(),
         "rows": rows,
     });
-    let path = bench.join("faces.json");
+    let path = bench.join(if variant { "faces_variant.json" } else { "faces.json" });
     std::fs::write(&path, serde_json::to_string_pretty(&report).map_err(|e| e.to_string())?)
         .map_err(|e| format!("{}: {e}", path.display()))?;
-    chart(&rows, &out_svg)?;
     print_table(&rows);
-    println!("wrote {} and {}", path.display(), out_svg.display());
+    if variant {
+        println!("wrote {} (a variant: the chart in docs/ is the defaults')", path.display());
+    } else {
+        chart(&rows, &out_svg)?;
+        println!("wrote {} and {}", path.display(), out_svg.display());
+    }
     Ok(())
 }
 

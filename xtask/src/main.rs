@@ -10,9 +10,11 @@
 //!   the reconstruction accuracy harness (oracle views of `../shared/data/meshes`), writing
 //!   `target/bench/recon.json` and, on a full run, `docs/accuracy.md`.
 //! - `cargo xtask chart`: `docs/speed_accuracy.svg` from `target/bench/recon.json`.
-//! - `cargo xtask faces-chart [--meshes a,b] [--size 512]`: `docs/faces_accuracy.svg` and
-//!   `target/bench/faces.json`, triangles against Chamfer distance of the refinement's adaptive
-//!   mesh and of uniform-edge-length meshes fitted the same way.
+//! - `cargo xtask faces-chart [--meshes a,b] [--size 512] [--curvature TOL|views:TOL|off]
+//!   [--uniform-from JSON]`: `docs/faces_accuracy.svg` and `target/bench/faces.json`, triangles
+//!   against Chamfer distance of the refinement's adaptive mesh and of uniform-edge-length
+//!   meshes fitted the same way (a `--curvature` variant: `target/bench/faces_variant.json`
+//!   only).
 //! - `cargo xtask refine-table [--meshes a,b] [--all] [--size 512] [--edges MIN,MAX]
 //!   [--simplify TOL|off] [--curvature TOL|views:TOL|off]`: the refinement loop with
 //!   the oracle and identity enhancers on noisy oracle views, `target/bench/refine.json` and the
@@ -229,6 +231,16 @@ enum Task {
         /// Redraw the chart and the table from target/bench/faces.json instead of measuring.
         #[arg(long)]
         replot: bool,
+        /// A variant of the refinement's curvature bound (as `refine-table --curvature`:
+        /// TOL, `views:TOL` or `off`): measured into target/bench/faces_variant.json, the
+        /// chart in docs/ left as it is.
+        #[arg(long)]
+        curvature: Option<String>,
+        /// Take the uniform meshes' points from this earlier faces JSON instead of fitting
+        /// them again (they do not depend on the curvature bound: their edge limits are
+        /// pinned to one length).
+        #[arg(long)]
+        uniform_from: Option<std::path::PathBuf>,
     },
     /// Check that every dependency the README's demo command compiles is compiled with the
     /// same features by the test command (so the tests reuse it instead of rebuilding it).
@@ -734,11 +746,11 @@ fn main() -> ExitCode {
         Task::Deny => deny(),
         Task::GpuCheck => gpu::check(),
         Task::Chart => chart::run(),
-        Task::FacesChart { meshes, size, replot } => {
+        Task::FacesChart { meshes, size, replot, curvature, uniform_from } => {
             if replot {
                 faces_chart::replot()
             } else {
-                faces_chart::run(meshes.as_deref(), size)
+                faces_chart::run(meshes.as_deref(), size, curvature.as_deref(), uniform_from.as_deref())
             }
         }
         Task::Package { verify } => package(verify),
