@@ -171,10 +171,8 @@ fn row_markdown(row: &Value) -> String {
     )
 }
 
-/// The uniform points of `mesh` in the faces JSON at `path`.
-fn uniform_points_from(path: &std::path::Path, mesh: &str) -> Result<Vec<Value>, String> {
-    let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
-    let report: Value = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+/// The uniform points of `mesh` in `report`, the faces JSON read from `path`.
+fn uniform_points_from(report: &Value, path: &std::path::Path, mesh: &str) -> Result<Vec<Value>, String> {
     let row = report["rows"].as_array().into_iter().flatten().find(|r| r["mesh"] == mesh);
     let points = row.and_then(|r| r["uniform"].as_array()).cloned().unwrap_or_default();
     let edges: Vec<f32> = points.iter().filter_map(|p| p["edge_length"].as_f64()).map(|e| e as f32).collect();
@@ -199,8 +197,10 @@ pub(crate) fn run(
     // Every reused uniform curve is read before any fitting starts.
     let mut reused = std::collections::HashMap::new();
     if let Some(path) = uniform_from {
+        let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let report: Value = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
         for (name, _) in OBJECTS.iter().filter(|(n, _)| wanted.as_ref().is_none_or(|w| w.contains(n))) {
-            reused.insert(*name, uniform_points_from(path, name)?);
+            reused.insert(*name, uniform_points_from(&report, path, name)?);
         }
     }
     let out_svg = crate::workspace_root().join("docs").join("faces_accuracy.svg");
