@@ -239,8 +239,11 @@ pub(crate) fn run(
         let mut uniform = reused.remove(name).unwrap_or_default();
         for e in UNIFORM.into_iter().filter(|_| uniform_from.is_none()) {
             // The uniform meshes are the default refinement's with the limits pinned, whatever
-            // the variant (pinned limits leave the curvature bound nothing to do).
-            let (mesh, seconds) = refined(&truth, &coarse.geometry, &views, size, defaults, ((e, e), None))?;
+            // the variant (pinned limits leave the curvature bound nothing to do), and the fit
+            // kept whatever it agrees with the views: a curve of fits, not of the coarse mesh
+            // an edge length too long to fit better would give back.
+            let uniform_options = defaults.with_keep_input_unless_better(false);
+            let (mesh, seconds) = refined(&truth, &coarse.geometry, &views, size, uniform_options, ((e, e), None))?;
             let mut p = point(&truth, &mesh, seconds)?;
             p["edge_length"] = json!(e);
             uniform.push(p);

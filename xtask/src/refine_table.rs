@@ -6,7 +6,9 @@
 //! normal noise σ = 0.05 (so the coarse mesh has something to gain), the default pipeline
 //! (reconstruction and texture), then refinement with the oracle enhancer (renders of the
 //! true mesh: the best an enhancer could do) for one and for two iterations, and with the
-//! identity enhancer for one. Scores: Chamfer distance against the truth, mean PSNR of the
+//! identity enhancer for one, once as the defaults run it and once with the fit's result kept
+//! whatever its agreement with the views (`RefineOptions::keep_input_unless_better` off: the
+//! drift of the fit itself). Scores: Chamfer distance against the truth, mean PSNR of the
 //! 16 SyncDreamer views at 256² (composited over white), triangles and seconds. Meshes
 //! without colours get `wonder3d::dataset::procedural_colours`; spot is the bundled,
 //! textured one. Writes `target/bench/refine.json` and prints the markdown table.
@@ -14,7 +16,9 @@
 //! `--all` is the robustness sweep of issue #22 ("no self-intersections or NaN after
 //! refinement"): the same protocol on every mesh of `crate::recon::CLOSED` and
 //! `crate::recon::CONCAVE` (the 14 closed meshes, the teapot and both teacups), both rigs,
-//! oracle refinement for 2 iterations and identity for 1 (no PSNR, no 1-iteration run). Every
+//! oracle refinement for 2 iterations and identity for 1 (no PSNR, no 1-iteration run; the
+//! identity run with `keep_input_unless_better` off, so that it checks a fit, not the coarse
+//! mesh the guard would return). Every
 //! refined mesh is checked for non-finite coordinates, watertightness and crossing triangle
 //! pairs; an error or a panic is recorded in its row (with the iteration it happened in) and
 //! the sweep goes on. `--meshes` filters by file stem. Writes `target/bench/refine_all_<size>.json`
@@ -83,6 +87,7 @@ fn refined(
     row["crossings"] = json!(crossings);
     row["watertight"] = json!(watertight);
     row["fit_seconds"] = json!(out.report.iterations.iter().map(|i| i.mesh.fit.seconds).collect::<Vec<_>>());
+    row["kept_input"] = json!(out.report.iterations.iter().map(|i| i.mesh.kept_input).collect::<Vec<_>>());
     Ok(row)
 }
 
@@ -168,10 +173,14 @@ pub(crate) fn run(
             let oracle = OracleEnhancer::new(truth.clone());
             let one = refined(&truth, &coarse.geometry, &views, &oracle, &options.clone().with_iterations(1))?;
             let two = refined(&truth, &coarse.geometry, &views, &oracle, &options.clone().with_iterations(2))?;
-            let identity = refined(&truth, &coarse.geometry, &views, &IdentityEnhancer, &options.with_iterations(1))?;
+            let identity =
+                refined(&truth, &coarse.geometry, &views, &IdentityEnhancer, &options.clone().with_iterations(1))?;
+            // The fit itself, without the guard that keeps the input: its drift.
+            let unguarded = options.with_iterations(1).with_mesh(mesh_options.with_keep_input_unless_better(false));
+            let identity_fit = refined(&truth, &coarse.geometry, &views, &IdentityEnhancer, &unguarded)?;
             let row = json!({
                 "mesh": name, "rig": rig.name, "coarse": coarse_row,
-                "oracle_1": one, "oracle_2": two, "identity_1": identity,
+                "oracle_1": one, "oracle_2": two, "identity_1": identity, "identity_1_fit": identity_fit,
             });
             eprintln!("{}", row_markdown(&row));
             rows.push(row);
@@ -196,35 +205,47 @@ pub(crate) fn run(
 fn mesh_refinement_json(o: &wonder3d::recon::RefineOptions) -> Value {
     json!({ "lr": o.lr, "laplacian_weight": o.laplacian_weight, "steps": o.steps,
             "edge_len_lims": o.edge_len_lims, "simplify_tolerance": o.simplify_tolerance,
-            "curvature_tolerance": o.curvature_tolerance, "curvature_from_views": o.curvature_from_views })
+            "curvature_tolerance": o.curvature_tolerance, "curvature_from_views": o.curvature_from_views,
+            "keep_input_unless_better": o.keep_input_unless_better })
 }
 
 fn write(path: &Path, text: &str) -> Result<(), String> {
     std::fs::write(path, text).map_err(|e| format!("{}: {e}", path.display()))
 }
 
-const HEADER: &str = "| mesh | rig | CD coarse → oracle 1 → oracle 2 (identity 1) | surface CD coarse → oracle 1 → oracle 2 (identity 1) | novel-view PSNR dB coarse → oracle 1 → oracle 2 (identity 1) | triangles coarse → oracle 2 | seconds per oracle iteration |\n|---|---|---|---|---|---|---|";
+const HEADER: &str = "| mesh | rig | CD coarse → oracle 1 → oracle 2 (identity 1; its fit alone) | surface CD coarse → oracle 1 → oracle 2 (identity 1; its fit alone) | novel-view PSNR dB coarse → oracle 1 → oracle 2 (identity 1) | triangles coarse → oracle 2 | input kept: oracle 2's iterations, identity | seconds per oracle iteration |\n|---|---|---|---|---|---|---|---|";
+
+/// `yes`/`no` per iteration of a stage's `kept_input`.
+fn kept(stage: &Value) -> String {
+    let kept = stage["kept_input"].as_array().map(Vec::as_slice).unwrap_or_default();
+    let words: Vec<&str> = kept.iter().map(|k| if k.as_bool() == Some(true) { "yes" } else { "no" }).collect();
+    if words.is_empty() { "–".into() } else { words.join(", ") }
+}
 
 fn row_markdown(r: &Value) -> String {
     let f = |k: &str, m: &str| crate::recon::f(r, &[k, m]);
     format!(
-        "| {} | {} | {:.4} → {:.4} → {:.4} ({:.4}) | {:.5} → {:.5} → {:.5} ({:.5}) | {:.2} → {:.2} → {:.2} ({:.2}) | {} → {} | {:.1} |",
+        "| {} | {} | {:.4} → {:.4} → {:.4} ({:.4}; {:.4}) | {:.5} → {:.5} → {:.5} ({:.5}; {:.5}) | {:.2} → {:.2} → {:.2} ({:.2}) | {} → {} | {}; {} | {:.1} |",
         r["mesh"].as_str().unwrap_or(""),
         r["rig"].as_str().unwrap_or(""),
         f("coarse", "chamfer"),
         f("oracle_1", "chamfer"),
         f("oracle_2", "chamfer"),
         f("identity_1", "chamfer"),
+        f("identity_1_fit", "chamfer"),
         f("coarse", "surface_chamfer"),
         f("oracle_1", "surface_chamfer"),
         f("oracle_2", "surface_chamfer"),
         f("identity_1", "surface_chamfer"),
+        f("identity_1_fit", "surface_chamfer"),
         f("coarse", "psnr"),
         f("oracle_1", "psnr"),
         f("oracle_2", "psnr"),
         f("identity_1", "psnr"),
         f("coarse", "triangles"),
         f("oracle_2", "triangles"),
+        kept(&r["oracle_2"]),
+        kept(&r["identity_1"]),
         f("oracle_2", "seconds") / 2.0,
     )
 }
@@ -298,6 +319,7 @@ fn checked_refine(
         row["reseeds"] = json!(iterations.iter().map(|i| i.mesh.reseeds).collect::<Vec<_>>());
         row["curvature_bound_dropped"] =
             json!(iterations.iter().map(|i| i.mesh.curvature_bound_dropped).collect::<Vec<_>>());
+        row["kept_input"] = json!(iterations.iter().map(|i| i.mesh.kept_input).collect::<Vec<_>>());
         Ok::<_, String>(row)
     }));
     let mut row = match result {
@@ -376,8 +398,11 @@ fn sweep(
                     let oracle = OracleEnhancer::new(truth.clone());
                     row["oracle_2"] =
                         checked_refine(truth, &coarse.geometry, &views, &oracle, &options.clone().with_iterations(2));
-                    row["identity_1"] =
-                        checked_refine(truth, &coarse.geometry, &views, &IdentityEnhancer, &options.with_iterations(1));
+                    // The identity run checks the fit itself: with the guard it would return
+                    // the coarse mesh, checked above.
+                    let unguarded =
+                        options.with_iterations(1).with_mesh(mesh_options.with_keep_input_unless_better(false));
+                    row["identity_1"] = checked_refine(truth, &coarse.geometry, &views, &IdentityEnhancer, &unguarded);
                 }
             }
             eprintln!("{}  [{:.0} s]", sweep_row(&row), start.elapsed().as_secs_f64());

@@ -86,8 +86,8 @@ pub struct CoarseOptions {
     pub curvature_tolerance: Option<f32>,
     /// With a [`curvature_tolerance`](Self::curvature_tolerance): read the curvature a
     /// vertex is sized by from the target normal maps where they show it, instead of from
-    /// the mesh (off by default; [`crate::RefineOptions::curvature_from_views`] has the
-    /// measurements). The mesh being fitted is wrong where the sizing matters most: it shows
+    /// the mesh (off by default here, on in the refinement;
+    /// [`crate::RefineOptions::curvature_from_views`] has the measurements). The mesh being fitted is wrong where the sizing matters most: it shows
     /// noise as curvature on smooth parts (short edges that keep the noise) and has not yet
     /// grown the detail the views show (long edges that cannot hold it). The views'
     /// curvature is the angle between target normals [`VIEW_CURVATURE_STENCIL`] pixels

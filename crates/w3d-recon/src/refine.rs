@@ -14,16 +14,18 @@
 //! learning rate decayed by 0.99 per step as in the reference; target edge lengths between
 //! 0.01 and 0.03 (bounded below by two pixels of the views, as in the coarse stage) that
 //! follow the shape: cut short where the surface is curved, so that an edge's chord stays
-//! within 0.002 of it ([`RefineOptions::curvature_tolerance`]), long where it is flat (the
-//! curvature of the mesh being fitted; [`RefineOptions::curvature_from_views`] reads it from
-//! the enhanced normal maps instead); and the
+//! within 0.0012 of it ([`RefineOptions::curvature_tolerance`]), long where it is flat — the
+//! curvature the enhanced normal maps show ([`RefineOptions::curvature_from_views`]), since
+//! the mesh being fitted shows noise as curvature and lacks the detail still to come; the
 //! normal loss kept 2 pixels inside the silhouette (a 5×5 erosion of the target masks, as in
-//! the reference), where a generative model's normals are least reliable. The reference's
-//! edge lengths, 0.005–0.008, gave spot 105–125 k triangles and 42–46 s per iteration at 512²
-//! on 2 cores, with a worse Chamfer distance and novel-view PSNR; edges sized by the
-//! remesher's speed alone (0.01–0.016) left spot's smooth flanks as finely cut as its ears,
-//! and the fit of so many small edges to smooth-shaded views drifted (+5–7 % CD with an
-//! enhancer that changes nothing, against at most +4.3 % now).
+//! the reference), where a generative model's normals are least reliable; and the input
+//! mesh kept when the result agrees no better with the views
+//! ([`RefineOptions::keep_input_unless_better`]). The reference's edge lengths,
+//! 0.005–0.008, gave spot 105–125 k triangles and 42–46 s per iteration at 512² on 2 cores,
+//! with a worse Chamfer distance and novel-view PSNR; edges sized by the remesher's speed
+//! alone (0.01–0.016) left spot's smooth flanks as finely cut as its ears, and the fit of so
+//! many small edges to smooth-shaded views drifted (+5–7 % CD with an enhancer that changes
+//! nothing).
 //!
 //! ```
 //! use w3d_core::ViewRig;
@@ -45,7 +47,7 @@ use std::time::Instant;
 
 use w3d_core::{Mesh, Result, ViewSet};
 
-use crate::coarse::{CoarseOptions, CoarseReport, reconstruct_coarse};
+use crate::coarse::{CoarseOptions, CoarseReport, reconstruct_coarse, view_loss};
 use crate::pipeline::{COARSE_RESEEDS, polish_moved};
 use crate::polish::PolishReport;
 use crate::untangle::{UntangleReport, untangle};
@@ -79,12 +81,14 @@ pub struct RefineOptions {
     /// vertices have stopped moving, whatever the shape.
     pub curvature_tolerance: Option<f32>,
     /// Size by the curvature the enhanced normal maps show rather than the mesh's own
-    /// ([`CoarseOptions::curvature_from_views`]; off by default). Measured with the oracle
-    /// enhancer (`docs/accuracy.md`, "Curvature read from the enhanced views"): fewer
-    /// triangles for the same or better accuracy on the orthographic rig (koala surface CD
-    /// 0.0021 → 0.0015 with 12 % fewer triangles), but in the perspective rig the thin
-    /// plane's fit drifts under the identity enhancer (CD +14 %, against +4 % with the
-    /// mesh's curvature), so it is not the default.
+    /// ([`CoarseOptions::curvature_from_views`]; on by default). Measured with the oracle
+    /// enhancer on five objects in two rigs (`docs/accuracy.md`, "Curvature read from the
+    /// enhanced views"), against the mesh's curvature at tolerance 0.002: a better surface
+    /// Chamfer distance on four of five objects in the orthographic rig (koala 0.0021 →
+    /// 0.0017, plane 0.0015 → 0.0013; spot +1.4 %) and within 3.3 % in perspective, with fewer
+    /// of the uniform meshes' triangles at equal accuracy on four objects of five. The views
+    /// read curvature about 0.6–0.8 of the mesh's estimate, hence the tighter default
+    /// tolerance.
     pub curvature_from_views: bool,
     /// Weight of the Laplacian regulariser inside the remeshing optimiser's update.
     pub laplacian_weight: f32,
@@ -105,6 +109,16 @@ pub struct RefineOptions {
     /// (±0.0001) and novel-view PSNR within −0.39…+0.15 dB; 0.001 halved spot again but cost
     /// it up to 0.4 dB.
     pub simplify_tolerance: Option<f32>,
+    /// Return the input mesh (without attributes) when the refined one agrees no better
+    /// with the views ([`crate::view_loss`] with the fit's weights, before and after): a
+    /// refinement iteration must not make the mesh worse than the views say it is. Views that
+    /// show nothing new (the identity enhancer, which returns renders of the mesh itself)
+    /// still make the fit move the surface by a fraction of an edge — a four-times finer mesh
+    /// fitted to smooth-shaded renders of a coarse one; up to +6 % Chamfer distance on the
+    /// test objects of `docs/accuracy.md` ("Refinement") — and an iteration that gives back
+    /// what the previous one gained (the thin plane's second iteration) is caught the same
+    /// way. On by default.
+    pub keep_input_unless_better: bool,
     /// Seed of the remesher's random choices.
     pub seed: u64,
 }
@@ -116,13 +130,14 @@ impl Default for RefineOptions {
             lr: 0.03,
             lr_decay: 0.99,
             edge_len_lims: (0.01, 0.03),
-            curvature_tolerance: Some(0.002),
-            curvature_from_views: false,
+            curvature_tolerance: Some(0.0012),
+            curvature_from_views: true,
             laplacian_weight: CoarseOptions::default().laplacian_weight,
             normal_mask_erosion: 2,
             untangle_rounds: 400,
             polish_steps: 40,
             simplify_tolerance: Some(0.0005),
+            keep_input_unless_better: true,
             seed: 0,
         }
     }
@@ -207,6 +222,14 @@ impl RefineOptions {
         self
     }
 
+    /// These options with [`keep_input_unless_better`](Self::keep_input_unless_better) set
+    /// to `value`.
+    #[must_use]
+    pub fn with_keep_input_unless_better(mut self, value: bool) -> Self {
+        self.keep_input_unless_better = value;
+        self
+    }
+
     /// These options with [`seed`](Self::seed) set to `value`.
     #[must_use]
     pub fn with_seed(mut self, value: u64) -> Self {
@@ -252,7 +275,14 @@ pub struct RefineReport {
     /// [`RefineOptions::simplify_tolerance`] is `None`, or when the polished mesh was kept
     /// because it had crossing triangles or the simplification kept making some).
     pub simplify: Option<SimplifyReport>,
-    /// Triangles of the refined mesh.
+    /// [`crate::view_loss`] of the input mesh against the views.
+    pub loss_input: f32,
+    /// [`crate::view_loss`] of the refined mesh (after simplification) against the views.
+    pub loss_refined: f32,
+    /// Whether the input mesh came back because the refined one agreed no better with the
+    /// views ([`RefineOptions::keep_input_unless_better`]).
+    pub kept_input: bool,
+    /// Triangles of the returned mesh.
     pub triangles: usize,
     /// Wall-clock seconds of the whole refinement.
     pub seconds: f64,
@@ -262,8 +292,11 @@ pub struct RefineReport {
 /// normal maps and masks of `views` (square images through their rig, typically the four
 /// enhanced views of one refinement iteration) and cleans the result up like
 /// [`crate::reconstruct`] does, fitting again with other remesher seeds when untangling
-/// leaves crossings, and last without the curvature bound on the edge lengths. `progress` is called after every fitting step with `(steps done, steps
-/// in all, loss before the step)`; a rerun counts its steps from the start again.
+/// leaves crossings, and last without the curvature bound on the edge lengths; the input
+/// comes back instead when the result agrees no better with the views
+/// ([`RefineOptions::keep_input_unless_better`]). `progress` is called after every fitting
+/// step with `(steps done, steps in all, loss before the step)`; a rerun counts its steps
+/// from the start again.
 pub fn refine_mesh(
     views: &ViewSet,
     mesh: &Mesh,
@@ -309,6 +342,11 @@ pub fn refine_mesh(
         Some(tolerance) => simplify_without_crossings(polished, tolerance)?,
         None => (polished, None),
     };
+    let loss_input = view_loss(views, mesh, &fit_options)?;
+    let loss_refined = view_loss(views, &refined, &fit_options)?;
+    let better = loss_refined < loss_input;
+    let kept_input = options.keep_input_unless_better && !better;
+    let refined = if kept_input { mesh.clone().without_attributes() } else { refined };
     let report = RefineReport {
         fit,
         untangle: untangle_report,
@@ -316,6 +354,9 @@ pub fn refine_mesh(
         curvature_bound_dropped,
         polish: polish_report,
         simplify: simplify_report,
+        loss_input,
+        loss_refined,
+        kept_input,
         triangles: refined.triangle_count(),
         seconds: start.elapsed().as_secs_f64(),
     };

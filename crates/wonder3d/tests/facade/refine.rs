@@ -60,20 +60,30 @@ fn the_oracle_enhancer_sharpens_geometry_and_texture_and_identity_does_no_harm()
     assert_eq!(simplified.triangles_after, oracle.geometry.triangle_count());
     assert!(cd < 0.9 * cd_before, "oracle refinement: CD {cd_before:.5} -> {cd:.5}");
     assert!(psnr > psnr_before + 0.5, "oracle refinement: PSNR {psnr_before:.2} -> {psnr:.2} dB");
+    assert!(!report.mesh.kept_input && report.mesh.loss_refined < report.mesh.loss_input, "{:?}", report.mesh);
 
+    // Views that show nothing new: the fit moves the surface a little, agrees worse with
+    // them than the mesh they were rendered from, and the input comes back.
     let identity = refine(&geometry, &views, &IdentityEnhancer, &options(), &mut |_| {}).unwrap();
-    let cd_identity = chamfer(&identity.geometry, &spot);
-    eprintln!("identity, 1 iteration: CD {cd_identity:.5}");
-    assert!(identity.geometry.topology().is_watertight() && identity.geometry.self_intersections().is_empty());
-    assert!(cd_identity <= 1.05 * cd_before, "identity refinement: CD {cd_before:.5} -> {cd_identity:.5}");
+    let report = &identity.report.iterations[0].mesh;
+    assert!(report.kept_input && report.loss_refined >= report.loss_input, "{report:?}");
+    assert_eq!(identity.geometry, geometry.clone().without_attributes());
     assert_eq!(identity.report.enhancer, "identity");
+    // The fit alone, kept whatever it agrees: closed, uncrossed, within 5 % of the CD.
+    let fit_only = options().with_mesh(options().mesh.with_keep_input_unless_better(false));
+    let fitted = refine(&geometry, &views, &IdentityEnhancer, &fit_only, &mut |_| {}).unwrap();
+    let cd_fitted = chamfer(&fitted.geometry, &spot);
+    eprintln!("identity, 1 iteration, the fit kept: CD {cd_fitted:.5}");
+    assert!(!fitted.report.iterations[0].mesh.kept_input);
+    assert!(fitted.geometry.topology().is_watertight() && fitted.geometry.self_intersections().is_empty());
+    assert!(cd_fitted <= 1.05 * cd_before, "identity refinement: CD {cd_before:.5} -> {cd_fitted:.5}");
 }
 
-/// The opt-in sizing by the curvature the enhanced views show
-/// (`RefineOptions::curvature_from_views`) gives another mesh, as closed and uncrossed, that
-/// still gains on the coarse one.
+/// Sizing by the mesh's own curvature instead of the one the enhanced views show
+/// (`RefineOptions::curvature_from_views` off) gives another mesh, as closed and uncrossed,
+/// that still gains on the coarse one.
 #[test]
-fn sizing_by_the_views_curvature_refines_too() {
+fn sizing_by_the_mesh_curvature_refines_too() {
     let (spot, views, geometry, _) = coarse();
     let cd_before = chamfer(&geometry, &spot);
     let mesh_options = MeshRefineOptions::default().with_steps(60).with_edge_len_lims((0.012, 0.03));
@@ -82,14 +92,14 @@ fn sizing_by_the_views_curvature_refines_too() {
         refine(&geometry, &views, &OracleEnhancer::new(spot.clone()), &options, &mut |_| {}).unwrap()
     };
     let (by_mesh, by_views) = (run(false), run(true));
-    let cd = chamfer(&by_views.geometry, &spot);
+    let cd = chamfer(&by_mesh.geometry, &spot);
     eprintln!(
-        "sized by the mesh: {} triangles; by the views: {} triangles, CD {cd_before:.5} -> {cd:.5}",
-        by_mesh.geometry.triangle_count(),
-        by_views.geometry.triangle_count()
+        "sized by the views: {} triangles; by the mesh: {} triangles, CD {cd_before:.5} -> {cd:.5}",
+        by_views.geometry.triangle_count(),
+        by_mesh.geometry.triangle_count()
     );
     assert_ne!(by_mesh.geometry.triangle_count(), by_views.geometry.triangle_count());
-    assert!(by_views.geometry.topology().is_watertight() && by_views.geometry.self_intersections().is_empty());
+    assert!(by_mesh.geometry.topology().is_watertight() && by_mesh.geometry.self_intersections().is_empty());
     assert!(cd < 0.9 * cd_before, "CD {cd_before:.5} -> {cd:.5}");
 }
 
