@@ -120,8 +120,18 @@ pub fn run(args: &RefineArgs) -> Result<()> {
 
 /// The one-line summary of a refinement printed by `refine`, `reconstruct` and `run`.
 pub fn summary(r: &wonder3d::refine::RefineReport) -> String {
+    let kept: Vec<String> =
+        r.iterations.iter().enumerate().filter(|(_, i)| i.mesh.kept_input).map(|(k, _)| (k + 1).to_string()).collect();
+    let kept = match kept.len() {
+        0 => String::new(),
+        1 => format!(" (iteration {} kept its input mesh: the fit agreed no better with the enhanced views)", kept[0]),
+        _ => format!(
+            " (iterations {} kept their input mesh: the fit agreed no better with the enhanced views)",
+            kept.join(", ")
+        ),
+    };
     format!(
-        "refined with the {} enhancer: {} iteration(s), {} triangles in {:.1} s",
+        "refined with the {} enhancer: {} iteration(s), {} triangles in {:.1} s{kept}",
         r.enhancer,
         r.iterations.len(),
         r.triangles,

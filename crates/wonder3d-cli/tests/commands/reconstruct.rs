@@ -139,6 +139,17 @@ fn refine_with_the_oracle_sharpens_a_coarse_mesh() {
     };
     let (before, after) = (chamfer(&coarse), chamfer(&refined));
     assert!(after < before, "the oracle at 192² sharpens the 64² reconstruction: chamfer {before} -> {after}");
+    assert_eq!(json["iterations"][0]["mesh"]["kept_input"], false, "{json}");
+
+    // Views that show nothing new: the fit agrees no better with them, the coarse mesh comes
+    // back and the summary says why.
+    let (v, c, o) = (views.to_str().unwrap(), coarse.to_str().unwrap(), refined.to_str().unwrap());
+    let run = wonder3d(&["refine", c, v, "--enhancer", "identity", "--iterations", "1", "--size", "128", "--out", o]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(stdout.contains("iteration 1 kept its input mesh"), "{stdout}");
+    let (kept, input) = (wonder3d::load_mesh(&refined).unwrap(), wonder3d::load_mesh(&coarse).unwrap());
+    assert_eq!(kept.triangle_count(), input.triangle_count());
 }
 
 #[test]
