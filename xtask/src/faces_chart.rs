@@ -4,8 +4,9 @@
 //!
 //! Per object of the refinement table (orthographic rig, the same noisy 128² oracle views and
 //! default coarse mesh as `cargo xtask refine-table`), two oracle-enhancer iterations:
-//! - with the default refinement (**refined**: edge lengths adapted between 0.01 and 0.016
-//!   by the remesher, then the quadric simplification at the default tolerance);
+//! - with the default refinement (**refined**: edge lengths adapted between 0.01 and 0.03
+//!   by the remesher and bounded by the curvature, then the quadric simplification at the
+//!   default tolerance);
 //! - the same without the simplification (**adaptive**), and that mesh simplified at each
 //!   tolerance of [`TOLERANCES`] as the refinement does it (`simplify_without_crossings`: the
 //!   simplification curve);
@@ -23,6 +24,17 @@
 //! `target/bench/faces_variant.json` (the chart stays the defaults'), and `--uniform-from
 //! JSON` takes the uniform meshes' points from an earlier run instead of fitting them again
 //! (two thirds of the time).
+//!
+//! `--bound` measures nothing but the true meshes: per object, the share of a uniform mesh's
+//! triangles that the best isotropic sizing needs for the same mean distance to the surface,
+//! under the chord model of a triangle's error (an edge of length `h` where the surface's
+//! largest normal curvature is `κ` deviates by about `κ h² / 8`; the mean error is the
+//! area-weighted mean of `κ h²`, the triangle count the integral of `1 / h²`). Minimising the
+//! count at a given mean error gives `h ∝ κ^(-1/4)` and the share `(mean √κ)² / mean κ` (at
+//! most 1, by Cauchy–Schwarz); sizing to a chord tolerance (`h ∝ κ^(-1/2)`, equal error
+//! everywhere) needs exactly the uniform mesh's count under this model. `κ` per vertex is the
+//! remesher's estimate (the largest of `2 |n · e| / |e|²` over its edges, averaged with its
+//! neighbours'), weighted by a third of the area of the vertex's triangles.
 
 use std::time::Instant;
 
@@ -48,6 +60,48 @@ const ITERATIONS: usize = 2;
 
 /// Surface samples per mesh of the exact surface Chamfer distance.
 const SURFACE_SAMPLES: usize = 100_000;
+
+/// `--bound`: the share of the uniform mesh's triangles that the mean-error-optimal isotropic
+/// sizing needs, per object (see the module documentation).
+pub(crate) fn bound() -> Result<(), String> {
+    println!("| object | vertices | area | mean κ | (mean √κ)² / mean κ |\n|---|---|---|---|---|");
+    for (name, file) in OBJECTS {
+        // Welded: a mesh with split vertices (the plane's OBJ has a vertex per face corner)
+        // would show no edge leaving a face.
+        let (mesh, _) = truth(name, file)?.merge_by_position();
+        let (positions, triangles) = (mesh.positions(), mesh.triangles());
+        let p = |i: u32| glam::Vec3::from(positions[i as usize]);
+        let normals: Vec<glam::Vec3> = mesh.vertex_normals().into_iter().map(glam::Vec3::from).collect();
+        let n = positions.len();
+        let (mut kappa, mut area) = (vec![0f64; n], vec![0f64; n]);
+        let mut neighbours: Vec<Vec<u32>> = vec![Vec::new(); n];
+        for t in triangles {
+            let a = f64::from((p(t[1]) - p(t[0])).cross(p(t[2]) - p(t[0])).length()) / 2.0;
+            for k in 0..3 {
+                let (i, j) = (t[k], t[(k + 1) % 3]);
+                area[i as usize] += a / 3.0;
+                let e = p(j) - p(i);
+                let len2 = f64::from(e.length_squared()).max(1e-20);
+                for (v, w) in [(i, j), (j, i)] {
+                    let c = 2.0 * f64::from(normals[v as usize].dot(e).abs()) / len2;
+                    kappa[v as usize] = kappa[v as usize].max(c);
+                    neighbours[v as usize].push(w);
+                }
+            }
+        }
+        let smoothed: Vec<f64> = (0..n)
+            .map(|v| {
+                let ring = &neighbours[v];
+                (kappa[v] + ring.iter().map(|&w| kappa[w as usize]).sum::<f64>()) / (1 + ring.len()) as f64
+            })
+            .collect();
+        let total: f64 = area.iter().sum();
+        let mean_k = smoothed.iter().zip(&area).map(|(k, a)| k * a).sum::<f64>() / total;
+        let mean_sqrt = smoothed.iter().zip(&area).map(|(k, a)| k.sqrt() * a).sum::<f64>() / total;
+        println!("| {name} | {n} | {total:.3} | {mean_k:.1} | {:.0} % |", 100.0 * mean_sqrt * mean_sqrt / mean_k);
+    }
+    Ok(())
+}
 
 /// Both Chamfer distances and the triangles of `geometry` against `truth`, with the seconds
 /// it took.

@@ -14,7 +14,8 @@
 //!   [--uniform-from JSON]`: `docs/faces_accuracy.svg` and `target/bench/faces.json`, triangles
 //!   against Chamfer distance of the refinement's adaptive mesh and of uniform-edge-length
 //!   meshes fitted the same way (a `--curvature` variant: `target/bench/faces_variant.json`
-//!   only).
+//!   only); `--bound`: the share of the uniform triangles the best isotropic sizing needs,
+//!   from the true meshes' curvature.
 //! - `cargo xtask refine-table [--meshes a,b] [--all] [--size 512] [--edges MIN,MAX]
 //!   [--simplify TOL|off] [--curvature TOL|views:TOL|off]`: the refinement loop with
 //!   the oracle and identity enhancers on noisy oracle views, `target/bench/refine.json` and the
@@ -241,6 +242,10 @@ enum Task {
         /// pinned to one length).
         #[arg(long)]
         uniform_from: Option<std::path::PathBuf>,
+        /// Print, per object, the share of a uniform mesh's triangles the best isotropic
+        /// sizing needs at equal mean error, from the true meshes' curvature (no fitting).
+        #[arg(long)]
+        bound: bool,
     },
     /// Check that every dependency the README's demo command compiles is compiled with the
     /// same features by the test command (so the tests reuse it instead of rebuilding it).
@@ -746,8 +751,10 @@ fn main() -> ExitCode {
         Task::Deny => deny(),
         Task::GpuCheck => gpu::check(),
         Task::Chart => chart::run(),
-        Task::FacesChart { meshes, size, replot, curvature, uniform_from } => {
-            if replot {
+        Task::FacesChart { meshes, size, replot, curvature, uniform_from, bound } => {
+            if bound {
+                faces_chart::bound()
+            } else if replot {
                 faces_chart::replot()
             } else {
                 faces_chart::run(meshes.as_deref(), size, curvature.as_deref(), uniform_from.as_deref())
