@@ -82,7 +82,7 @@ impl Schedule {
             samples: 12,
             size: 64,
             vae_steps: 1200,
-            stage_steps: [800, 6000, 1000, 3000, 8000],
+            stage_steps: [800, 6000, 1000, 3000, 16000],
             stage_warmup: [40, 300, 75, 50, 50],
             stage_lr: [5e-4, 3e-4, 2e-4, 1e-4, 1e-4],
             decoder_steps: 1500,
