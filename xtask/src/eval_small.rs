@@ -5,7 +5,9 @@
 //! truth inside the true masks (mean angular error), the generated masks with the true ones
 //! (IoU), and the mesh reconstructed from the generated views with the posed object
 //! (Chamfer distance, both normalised into the unit cube). Writes
-//! `target/eval-small/eval.json` and the contact sheet `docs/img/small_model.png`.
+//! `target/eval-small/eval.json` and the contact sheet `docs/img/small_model.png`: per object,
+//! the input, the generated views and the reconstructed mesh's normals from two cameras,
+//! above the true views and the true mesh.
 
 use std::path::Path;
 use std::time::Instant;
@@ -15,7 +17,7 @@ use wonder3d::diffusion::{CameraType, MultiViewPipeline, SampleOptions, SamplerK
 use wonder3d::eval::{EvalOptions, evaluate};
 use wonder3d::recon::{Preset, ReconOptions, reconstruct};
 use wonder3d::sheet::{SheetRow, contact_sheet, normal_picture};
-use wonder3d::{Image, ViewSet};
+use wonder3d::{Image, Mesh, ViewRig, ViewSet};
 
 use crate::train_small::{HELD_OUT_MESH, TRAIN_MESHES};
 
@@ -97,6 +99,31 @@ pub(crate) struct Sampling {
 
 /// `rgb` (3 channels, values in `[0, 1]`) composited over white by `mask`: how the model sees a
 /// view.
+/// The views of [`MESH_VIEWS`] in the rig's order, by index.
+const MESH_VIEW_INDICES: [usize; 2] = [1, 3];
+/// Sheet labels of the mesh pictures (`m` for mesh, as `n` and `c` for the normal and colour views).
+const MESH_VIEWS: [&str; 2] = ["m f-right", "m back"];
+
+/// Normal pictures of `mesh` (put into the unit cube) from the orthographic rig's
+/// [`MESH_VIEW_INDICES`] views at `size`; blank ones without a mesh (a failed
+/// reconstruction).
+fn mesh_pictures(mesh: Option<&Mesh>, size: u32) -> Result<Vec<Image>, String> {
+    let Some(mesh) = mesh else {
+        let blank = Image::new(size, size, 3, vec![1.0; (size * size * 3) as usize]).map_err(err)?;
+        return Ok(vec![blank; MESH_VIEW_INDICES.len()]);
+    };
+    let mut mesh = mesh.clone();
+    mesh.normalize_unit_cube();
+    let views = wonder3d::raster::render_oracle_views(&mesh, &ViewRig::wonder3d_ortho(), size).map_err(err)?;
+    MESH_VIEW_INDICES
+        .iter()
+        .map(|&i| {
+            let v = &views.views()[i];
+            normal_picture(&v.normal, &v.mask).map_err(err)
+        })
+        .collect()
+}
+
 fn on_white(rgb: &[f32], mask: &Image) -> Result<Image, String> {
     let values: Vec<f32> = rgb
         .chunks_exact(3)
@@ -229,11 +256,13 @@ pub(crate) fn run(
         let mut gen_row = vec![input.clone()];
         gen_row.extend(pictures(&views)?);
         gen_row.extend(generated.colours.iter().cloned());
+        gen_row.extend(mesh_pictures(recon.as_ref().ok().map(|(mesh, _)| mesh), size)?);
         let mut true_row = vec![input];
         true_row.extend(pictures(&truth)?);
         for v in truth.views() {
             true_row.push(on_white(v.colour.as_ref().ok_or("no colour view")?.data(), &v.mask)?);
         }
+        true_row.extend(mesh_pictures(Some(&posed), size)?);
         let tag = if held_out { " (held out)" } else { "" };
         rows.push(SheetRow { label: format!("{name}{tag}: generated"), images: gen_row });
         rows.push(SheetRow { label: format!("{name}: truth"), images: true_row });
@@ -252,6 +281,8 @@ pub(crate) fn run(
         "c back",
         "c left",
         "c f-left",
+        MESH_VIEWS[0],
+        MESH_VIEWS[1],
     ];
     let sheet = contact_sheet(&labels, &rows).map_err(err)?;
     let picture = root.join(sheet_path);
