@@ -33,8 +33,8 @@
 //! count at a given mean error gives `h ∝ κ^(-1/4)` and the share `(mean √κ)² / mean κ` (at
 //! most 1, by Cauchy–Schwarz); sizing to a chord tolerance (`h ∝ κ^(-1/2)`, equal error
 //! everywhere) needs exactly the uniform mesh's count under this model. `κ` per vertex is the
-//! remesher's estimate (the largest of `2 |n · e| / |e|²` over its edges, averaged with its
-//! neighbours'), weighted by a third of the area of the vertex's triangles.
+//! remesher's estimate (`w3d_remesh::vertex_curvatures`), weighted by a third of the area of
+//! the vertex's triangles.
 
 use std::time::Instant;
 
@@ -69,35 +69,18 @@ pub(crate) fn bound() -> Result<(), String> {
         // Welded: a mesh with split vertices (the plane's OBJ has a vertex per face corner)
         // would show no edge leaving a face.
         let (mesh, _) = truth(name, file)?.merge_by_position();
-        let (positions, triangles) = (mesh.positions(), mesh.triangles());
-        let p = |i: u32| glam::Vec3::from(positions[i as usize]);
-        let normals: Vec<glam::Vec3> = mesh.vertex_normals().into_iter().map(glam::Vec3::from).collect();
-        let n = positions.len();
-        let (mut kappa, mut area) = (vec![0f64; n], vec![0f64; n]);
-        let mut neighbours: Vec<Vec<u32>> = vec![Vec::new(); n];
-        for t in triangles {
-            let a = f64::from((p(t[1]) - p(t[0])).cross(p(t[2]) - p(t[0])).length()) / 2.0;
-            for k in 0..3 {
-                let (i, j) = (t[k], t[(k + 1) % 3]);
-                area[i as usize] += a / 3.0;
-                let e = p(j) - p(i);
-                let len2 = f64::from(e.length_squared()).max(1e-20);
-                for (v, w) in [(i, j), (j, i)] {
-                    let c = 2.0 * f64::from(normals[v as usize].dot(e).abs()) / len2;
-                    kappa[v as usize] = kappa[v as usize].max(c);
-                    neighbours[v as usize].push(w);
-                }
+        let kappa: Vec<f64> = wonder3d::remesh::vertex_curvatures(&mesh).into_iter().map(f64::from).collect();
+        let n = mesh.vertex_count();
+        let mut area = vec![0f64; n];
+        for &t in mesh.triangles() {
+            let a = wonder3d::core::normals::face_normal(mesh.positions(), t).length() / 2.0;
+            for v in t {
+                area[v as usize] += a / 3.0;
             }
         }
-        let smoothed: Vec<f64> = (0..n)
-            .map(|v| {
-                let ring = &neighbours[v];
-                (kappa[v] + ring.iter().map(|&w| kappa[w as usize]).sum::<f64>()) / (1 + ring.len()) as f64
-            })
-            .collect();
         let total: f64 = area.iter().sum();
-        let mean_k = smoothed.iter().zip(&area).map(|(k, a)| k * a).sum::<f64>() / total;
-        let mean_sqrt = smoothed.iter().zip(&area).map(|(k, a)| k.sqrt() * a).sum::<f64>() / total;
+        let mean_k = kappa.iter().zip(&area).map(|(k, a)| k * a).sum::<f64>() / total;
+        let mean_sqrt = kappa.iter().zip(&area).map(|(k, a)| k.sqrt() * a).sum::<f64>() / total;
         println!("| {name} | {n} | {total:.3} | {mean_k:.1} | {:.0} % |", 100.0 * mean_sqrt * mean_sqrt / mean_k);
     }
     Ok(())

@@ -53,7 +53,7 @@ mod topology;
 
 pub use edges::{EdgeTable, NONE};
 pub use ops::{RemeshParams, RemeshStats};
-pub use optimizer::{CurvatureHint, MeshOptimizer};
+pub use optimizer::{CurvatureHint, MeshOptimizer, vertex_curvatures};
 pub use options::RemeshOptions;
 pub use rows::VertexRows;
 pub use shapes::{geodesic_sphere, icosphere};

@@ -523,11 +523,9 @@ pub enum CurvatureHint {
 const CURVATURE_STEP_FACTOR: f32 = 2.0;
 
 /// Per-vertex caps `√(8 · tol / κ)` on the target edge length, `κ` as the vertex's entry of
-/// `hint` says (without one, the mesh's), the mesh's being the largest normal curvature at the
-/// vertex: over its edges `2 |n · e| / |e|²` (the circle through both ends tangent to the
-/// vertex's area-weighted normal), averaged with the same value of its neighbours so that one
-/// noisy edge does not decide. An edge of that length on a surface of curvature `κ` departs
-/// from it by about `tol` at its middle (the sagitta `κ l² / 8`).
+/// `hint` says (without one, the mesh's: [`vertex_curvatures`]). An edge of that length on a
+/// surface of curvature `κ` departs from it by about `tol` at its middle (the sagitta
+/// `κ l² / 8`).
 fn curvature_length_caps(
     positions: &[[f32; 3]],
     triangles: &[[u32; 3]],
@@ -535,6 +533,43 @@ fn curvature_length_caps(
     hint: Option<&[CurvatureHint]>,
     tol: f32,
 ) -> Vec<f32> {
+    curvatures_over_edges(positions, triangles, edges)
+        .into_iter()
+        .enumerate()
+        .map(|(v, mesh)| {
+            let kappa = match hint.and_then(|h| h.get(v)) {
+                Some(CurvatureHint::Replace(h)) => *h,
+                Some(CurvatureHint::AtLeast(h)) => h.max(mesh),
+                Some(CurvatureHint::Mesh) | None => mesh,
+            };
+            (8.0 * tol / kappa.max(1e-12)).sqrt()
+        })
+        .collect()
+}
+
+/// The curvature estimate the remesher sizes edges by
+/// ([`RemeshOptions::curvature_tolerance`]), per vertex of `mesh`, in 1 / mesh units: the
+/// largest normal curvature at the vertex over its edges, `2 |n · e| / |e|²` (the circle
+/// through both ends tangent to the vertex's area-weighted normal), averaged with the same
+/// value of its neighbours so that one noisy edge does not decide. A mesh with split vertices
+/// (a vertex per face corner) shows no curvature: weld it first
+/// (`w3d_core::Mesh::merge_by_position`).
+///
+/// ```
+/// // An icosphere of radius 0.4 reads a little over 1 / 0.4 everywhere (the largest over
+/// // each vertex's edges).
+/// let sphere = w3d_remesh::icosphere(4, 0.4)?;
+/// let curvatures = w3d_remesh::vertex_curvatures(&sphere);
+/// assert!(curvatures.iter().all(|k| (k * 0.4 - 1.0).abs() < 0.08)); // 1.01-1.06 times 1 / r
+/// # Ok::<(), w3d_core::Error>(())
+/// ```
+pub fn vertex_curvatures(mesh: &Mesh) -> Vec<f32> {
+    let edges = EdgeTable::new(mesh.triangles(), None, mesh.vertex_count()).edges;
+    curvatures_over_edges(mesh.positions(), mesh.triangles(), &edges)
+}
+
+/// [`vertex_curvatures`] with the unique edges `[lo, hi]` of `triangles` given.
+fn curvatures_over_edges(positions: &[[f32; 3]], triangles: &[[u32; 3]], edges: &[[u32; 2]]) -> Vec<f32> {
     use glam::Vec3;
     let n = positions.len();
     let p = |v: u32| Vec3::from(positions[v as usize]);
@@ -567,17 +602,5 @@ fn curvature_length_caps(
         count[a as usize] += 1;
         count[b as usize] += 1;
     }
-    sum.iter()
-        .zip(&count)
-        .enumerate()
-        .map(|(v, (k, c))| {
-            let mesh = k / *c as f32;
-            let kappa = match hint.and_then(|h| h.get(v)) {
-                Some(CurvatureHint::Replace(h)) => *h,
-                Some(CurvatureHint::AtLeast(h)) => h.max(mesh),
-                Some(CurvatureHint::Mesh) | None => mesh,
-            };
-            (8.0 * tol / kappa.max(1e-12)).sqrt()
-        })
-        .collect()
+    sum.iter().zip(&count).map(|(k, c)| k / *c as f32).collect()
 }
