@@ -97,8 +97,6 @@ pub(crate) struct Sampling {
     pub independent_noise: bool,
 }
 
-/// `rgb` (3 channels, values in `[0, 1]`) composited over white by `mask`: how the model sees a
-/// view.
 /// The views of [`MESH_VIEWS`] in the rig's order, by index.
 const MESH_VIEW_INDICES: [usize; 2] = [1, 3];
 /// Sheet labels of the mesh pictures (`m` for mesh, as `n` and `c` for the normal and colour views).
@@ -124,6 +122,8 @@ fn mesh_pictures(mesh: Option<&Mesh>, size: u32) -> Result<Vec<Image>, String> {
         .collect()
 }
 
+/// `rgb` (3 channels, values in `[0, 1]`) composited over white by `mask`: how the model sees a
+/// view.
 fn on_white(rgb: &[f32], mask: &Image) -> Result<Image, String> {
     let values: Vec<f32> = rgb
         .chunks_exact(3)

@@ -47,7 +47,7 @@ use std::time::Instant;
 
 use w3d_core::{Mesh, Result, ViewSet};
 
-use crate::coarse::{CoarseOptions, CoarseReport, reconstruct_coarse, view_loss};
+use crate::coarse::{CoarseOptions, CoarseReport, ViewFit, reconstruct_coarse};
 use crate::pipeline::{COARSE_RESEEDS, polish_moved};
 use crate::polish::PolishReport;
 use crate::untangle::{UntangleReport, untangle};
@@ -342,8 +342,10 @@ pub fn refine_mesh(
         Some(tolerance) => simplify_without_crossings(polished, tolerance)?,
         None => (polished, None),
     };
-    let loss_input = view_loss(views, mesh, &fit_options)?;
-    let loss_refined = view_loss(views, &refined, &fit_options)?;
+    // Both meshes against one set of targets; the loss does not depend on the sizing.
+    let judge = ViewFit::new(views, &fit_options.with_curvature_tolerance(None))?;
+    let loss_input = judge.loss_and_gradient(mesh.positions(), mesh.triangles())?.0;
+    let loss_refined = judge.loss_and_gradient(refined.positions(), refined.triangles())?.0;
     let better = loss_refined < loss_input;
     let kept_input = options.keep_input_unless_better && !better;
     let refined = if kept_input { mesh.clone().without_attributes() } else { refined };
