@@ -114,7 +114,7 @@ pub fn check() -> Result<(), String> {
     }
 
     // 2. Photo in, views out on the GPU: `wonder3d generate` with the shipped small model (5
-    //    steps) from spot's front render as a photo, on wgpu and on the CPU; every colour and
+    //    steps) from a render of spot as a photo, on wgpu and on the CPU; every colour and
     //    normal PNG within 2/255 and the masks the same but for 0.5 % of their pixels.
     run(&mut cargo(&["build", "--workspace", "--release", "--features", FEATURES, "--bin", "wonder3d"]))?;
     let cli = wgpu_target().join("release").join("wonder3d");

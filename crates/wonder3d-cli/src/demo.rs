@@ -26,8 +26,9 @@ pub struct DemoArgs {
     /// Side of the baked texture in texels.
     #[arg(long, default_value_t = DemoOptions::default().texture_size, allow_hyphen_values = true, value_parser = crate::args::texture_size)]
     texture_size: u32,
-    /// Start from spot's front render as a photo: background removal, the model's 6 views,
-    /// then the same extraction and report (needs a binary with the diffusion model).
+    /// Start from a photo of spot (its front render, turned as a training sample of the small
+    /// model shows it): background removal, the model's 6 views, then the same extraction and
+    /// report (needs a binary with the diffusion model).
     #[arg(long)]
     from_image: bool,
     /// With --from-image: the model directory (default: the small model trained here,
@@ -96,7 +97,7 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     Ok(())
 }
 
-/// The demo from spot's front render as a photo, with the model of `--weights`.
+/// The demo from a photo of spot, with the model of `--weights`.
 #[cfg(feature = "diffusion")]
 fn from_image(args: &DemoArgs, options: &DemoOptions) -> Result<wonder3d::demo::Demo> {
     let weights = match &args.weights {

@@ -460,22 +460,29 @@ impl DatasetObject {
     /// side 1), then scaled about the origin by [`framing_scale`] so that the front view
     /// frames it as [`INPUT_FRACTION`] says.
     pub fn posed(&self, draw: &Draw) -> Result<Mesh> {
-        let (yaw, pitch) = (draw.yaw_deg.to_radians(), draw.pitch_deg.to_radians());
-        let (sy, cy, sp, cp) = (yaw.sin(), yaw.cos(), pitch.sin(), pitch.cos());
-        // R = Ry(yaw) · Rx(pitch), in f64.
-        let r = [[cy, sy * sp, sy * cp], [0.0, cp, -sp], [-sy, cy * sp, cy * cp]];
-        let mut mesh = self.mesh.clone();
-        mesh.map_positions(|p| {
-            let p = [f64::from(p.x), f64::from(p.y), f64::from(p.z)];
-            let row = |k: usize| (r[k][0] * p[0] + r[k][1] * p[1] + r[k][2] * p[2]) as f32;
-            w3d_core::glam::Vec3::new(row(0), row(1), row(2))
-        })
-        .map_err(|e| e.in_file(&self.source))?;
-        mesh.normalize_unit_cube();
-        let scale = framing_scale(&mesh);
-        mesh.map_positions(|p| p * scale).map_err(|e| e.in_file(&self.source))?;
-        Ok(mesh)
+        pose(&self.mesh, draw).map_err(|e| e.in_file(&self.source))
     }
+}
+
+/// `mesh` (normalised into the unit cube) as a sample with `draw` renders it: rotated by the
+/// draw's pitch about +x, then its yaw about +y, normalised into the unit cube again, then
+/// scaled about the origin by [`framing_scale`] ([`DatasetObject::posed`] for a mesh that is
+/// not a file, e.g. the demo's bundled spot).
+pub fn pose(mesh: &Mesh, draw: &Draw) -> Result<Mesh> {
+    let (yaw, pitch) = (draw.yaw_deg.to_radians(), draw.pitch_deg.to_radians());
+    let (sy, cy, sp, cp) = (yaw.sin(), yaw.cos(), pitch.sin(), pitch.cos());
+    // R = Ry(yaw) · Rx(pitch), in f64.
+    let r = [[cy, sy * sp, sy * cp], [0.0, cp, -sp], [-sy, cy * sp, cy * cp]];
+    let mut mesh = mesh.clone();
+    mesh.map_positions(|p| {
+        let p = [f64::from(p.x), f64::from(p.y), f64::from(p.z)];
+        let row = |k: usize| (r[k][0] * p[0] + r[k][1] * p[1] + r[k][2] * p[2]) as f32;
+        w3d_core::glam::Vec3::new(row(0), row(1), row(2))
+    })?;
+    mesh.normalize_unit_cube();
+    let scale = framing_scale(&mesh);
+    mesh.map_positions(|p| p * scale)?;
+    Ok(mesh)
 }
 
 /// Fraction of the image side that the longest side of the object's front-view silhouette
