@@ -1,6 +1,6 @@
 //! `wonder3d demo [--out DIR]`: the whole mesh-extraction pipeline on the bundled spot (CC0),
-//! with no downloads (`wonder3d::demo`). `--from-image` starts from spot's front render as a
-//! photo and generates the views with the small model in the repository's
+//! with no downloads (`wonder3d::demo`). `--from-image` starts from a photo of spot (posed as
+//! in one of the small model's training samples) and generates the views with the small model in the repository's
 //! `assets/model-small` (or `--weights DIR`).
 
 use std::path::PathBuf;
