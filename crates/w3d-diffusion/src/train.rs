@@ -95,6 +95,47 @@ impl Stage {
     }
 }
 
+/// How the learning rate moves after the warm-up ([`TrainOptions::lr_schedule`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum LrSchedule {
+    /// Constant at the peak: diffusers' `constant_with_warmup`, the authors' schedule.
+    Constant,
+    /// Linearly from the peak at the end of the warm-up down to 0 at optimizer step `end`,
+    /// and 0 after (diffusers' `linear` with `num_training_steps = end`): a cool-down, which
+    /// lowers the loss a constant rate leaves on a plateau (`docs/training.md`).
+    LinearToZero {
+        /// The optimizer step (0-based) at which the learning rate reaches 0.
+        end: usize,
+    },
+}
+
+impl LrSchedule {
+    /// The factor of the peak learning rate at optimizer step `step` (0-based) after a
+    /// linear warm-up of `warmup` steps.
+    ///
+    /// ```
+    /// use w3d_diffusion::train::LrSchedule;
+    /// assert_eq!(LrSchedule::Constant.factor(5, 10), 0.5);
+    /// assert_eq!(LrSchedule::Constant.factor(50, 10), 1.0);
+    /// let linear = LrSchedule::LinearToZero { end: 110 };
+    /// assert_eq!(linear.factor(10, 10), 1.0);
+    /// assert_eq!(linear.factor(60, 10), 0.5);
+    /// assert_eq!(linear.factor(120, 10), 0.0);
+    /// ```
+    pub fn factor(&self, step: usize, warmup: usize) -> f64 {
+        if step < warmup {
+            return step as f64 / warmup as f64;
+        }
+        match *self {
+            LrSchedule::Constant => 1.0,
+            LrSchedule::LinearToZero { end } => {
+                (end.saturating_sub(step)) as f64 / (end.saturating_sub(warmup)).max(1) as f64
+            }
+        }
+    }
+}
+
 /// Hyper-parameters of a training run; [`TrainOptions::for_stage`] gives the authors' values.
 #[derive(Clone, Debug, PartialEq)]
 #[non_exhaustive]
@@ -111,10 +152,12 @@ pub struct TrainOptions {
     pub weight_decay: f64,
     /// AdamW ε: 1e-8.
     pub epsilon: f64,
-    /// Linear warm-up length in optimizer steps (`constant_with_warmup`): 100. The factor at
-    /// optimizer step `s` (0-based) is `s / warmup` below `warmup`, then 1 — so with warm-up the
-    /// first step has learning rate 0, as with diffusers' scheduler.
+    /// Linear warm-up length in optimizer steps: 100. The factor at optimizer step `s`
+    /// (0-based) is `s / warmup` below `warmup` — so with warm-up the first step has learning
+    /// rate 0, as with diffusers' schedulers — then as [`lr_schedule`](Self::lr_schedule) says.
     pub warmup_steps: usize,
+    /// The learning rate after the warm-up: [`LrSchedule::Constant`] (the authors').
+    pub lr_schedule: LrSchedule,
     /// Clip the global gradient norm to this (1.0); `None` disables clipping.
     pub max_grad_norm: Option<f64>,
     /// Micro-batches whose gradients are averaged into one optimizer step: 1.
@@ -155,6 +198,7 @@ impl TrainOptions {
             weight_decay: 1e-2,
             epsilon: 1e-8,
             warmup_steps: 100,
+            lr_schedule: LrSchedule::Constant,
             max_grad_norm: Some(1.0),
             gradient_accumulation: 1,
             min_snr_gamma: Some(5.0),
@@ -194,6 +238,12 @@ impl TrainOptions {
     /// Sets the warm-up length.
     pub fn with_warmup_steps(mut self, steps: usize) -> Self {
         self.warmup_steps = steps;
+        self
+    }
+
+    /// Sets the learning rate's course after the warm-up.
+    pub fn with_lr_schedule(mut self, schedule: LrSchedule) -> Self {
+        self.lr_schedule = schedule;
         self
     }
 
@@ -238,6 +288,14 @@ impl TrainOptions {
         };
         positive("learning_rate", self.learning_rate)?;
         positive("class_embedding_lr_mult", self.class_embedding_lr_mult)?;
+        if let LrSchedule::LinearToZero { end } = self.lr_schedule
+            && end <= self.warmup_steps
+        {
+            return Err(Error::invalid(
+                "lr_schedule",
+                format!("a linear decay that ends after the {}-step warm-up (found end {end})", self.warmup_steps),
+            ));
+        }
         positive("weight_decay", self.weight_decay)?;
         if !(self.epsilon.is_finite() && self.epsilon > 0.0) {
             return Err(Error::invalid("epsilon", format!("a finite value > 0 (found {})", self.epsilon)));
@@ -714,15 +772,15 @@ impl Trainer {
         Ok((loss_value, named))
     }
 
-    /// The learning-rate factor of optimizer step `step` (0-based).
-    pub fn warmup_factor(&self, step: usize) -> f64 {
-        let w = self.options.warmup_steps;
-        if step < w { step as f64 / w as f64 } else { 1.0 }
+    /// The factor of the peak learning rate at optimizer step `step` (0-based): the warm-up,
+    /// then [`TrainOptions::lr_schedule`].
+    pub fn lr_factor(&self, step: usize) -> f64 {
+        self.options.lr_schedule.factor(step, self.options.warmup_steps)
     }
 
     fn apply(&mut self, grads: HashMap<ParamId, Tensor<1>>) -> Result<(f32, f64), Error> {
         let (norm, clip) = clip_factor(&grads, self.options.max_grad_norm)?;
-        let lr = self.options.learning_rate * self.warmup_factor(self.step);
+        let lr = self.options.learning_rate * self.lr_factor(self.step);
         self.step += 1;
         let o = &self.options;
         let trainable = &self.trainable;

@@ -9,7 +9,9 @@ mod training_set;
 use std::collections::HashMap;
 
 use common::{fixture, values};
-use w3d_diffusion::train::{ConditionDrop, DiffusionObjective, Stage, StepDraws, TrainBatch, TrainOptions, Trainer};
+use w3d_diffusion::train::{
+    ConditionDrop, DiffusionObjective, LrSchedule, Stage, StepDraws, TrainBatch, TrainOptions, Trainer,
+};
 use w3d_diffusion::{Device, SchedulerConfig, Tensor, UNet, UNetConfig, gaussian_noise};
 
 fn tiny_config() -> UNetConfig {
@@ -187,6 +189,26 @@ fn stage_three_changes_only_the_joint_attention() {
     let unet = UNet::random(&tiny_config(), 11, &w3d_diffusion::default_device()).unwrap();
     let options = TrainOptions::for_stage(Stage::CrossDomain).with_train_all(true);
     assert_eq!(Trainer::new(unet, scheduler(), options).unwrap().trainable_tensors(), before.len());
+}
+
+#[test]
+fn a_linear_schedule_cools_the_learning_rate_down_to_zero() {
+    let device = w3d_diffusion::default_device();
+    let unet = UNet::random(&tiny_config(), 11, &device).unwrap();
+    let options = TrainOptions::for_stage(Stage::MixedDomain)
+        .with_learning_rate(1e-3)
+        .with_warmup_steps(2)
+        .with_lr_schedule(LrSchedule::LinearToZero { end: 6 });
+    let mut trainer = Trainer::new(unet, scheduler(), options.clone()).unwrap();
+    let batch = batch(&trainer.device(), 5);
+    let lrs: Vec<f64> = (0..7).map(|_| trainer.step(&batch).unwrap().learning_rate.unwrap()).collect();
+    // Warm-up 0, 0.5; then from the peak at step 2 down to 0 at step 6, and 0 after.
+    let expected = [0.0, 0.5, 1.0, 0.75, 0.5, 0.25, 0.0].map(|f| f * 1e-3);
+    assert!(lrs.iter().zip(expected).all(|(a, b)| (a - b).abs() < 1e-15), "{lrs:?}");
+    // A decay that would end inside the warm-up is refused, by name.
+    let bad = options.with_lr_schedule(LrSchedule::LinearToZero { end: 2 });
+    let err = Trainer::new(trainer.inference_unet(), scheduler(), bad).unwrap_err().to_string();
+    assert!(err.contains("lr_schedule"), "{err}");
 }
 
 #[test]

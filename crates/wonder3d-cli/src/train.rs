@@ -1,5 +1,5 @@
 //! `wonder3d train --stage 1|2|3 --data DIR --init MODEL --out DIR [--steps N] [--lr LR]
-//! [--objects-per-batch B] [--accumulate K] [--checkpoint-every C] [--seed S] [--resume]`:
+//! [--lr-schedule constant|linear] [--objects-per-batch B] [--accumulate K] [--checkpoint-every C] [--seed S] [--resume]`:
 //! trains the multi-view UNet of a model directory on a training set written by `wonder3d
 //! dataset`, one Wonder3D++ stage at a time (`docs/training.md`).
 
@@ -20,6 +20,15 @@ pub enum BackgroundArg {
     Black,
     /// Grey (0.5).
     Grey,
+}
+
+/// `--lr-schedule` of `wonder3d train`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum LrScheduleArg {
+    /// Constant after the warm-up (the authors').
+    Constant,
+    /// Linearly down to 0 at `--steps`.
+    Linear,
 }
 
 /// Arguments of `wonder3d train`.
@@ -51,6 +60,10 @@ pub struct TrainArgs {
     /// Linear warm-up in optimizer steps.
     #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(0..=10_000_000))]
     pub warmup: u64,
+    /// The learning rate after the warm-up: `constant` (the authors') or `linear`, from the
+    /// peak down to 0 at `--steps` (a cool-down; keep `--steps` when resuming).
+    #[arg(long, value_enum, default_value_t = LrScheduleArg::Constant)]
+    pub lr_schedule: LrScheduleArg,
     /// Objects per micro-batch (each 6 views, or 12 in stage 3).
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=1024))]
     pub objects_per_batch: u64,
@@ -104,7 +117,7 @@ pub fn run(args: &TrainArgs) -> Result<()> {
     use indicatif::{ProgressBar, ProgressStyle};
     use wonder3d::Error;
     use wonder3d::diffusion::MultiViewPipeline;
-    use wonder3d::diffusion::train::{RunEvent, RunOptions, Stage, TrainOptions, run_training};
+    use wonder3d::diffusion::train::{LrSchedule, RunEvent, RunOptions, Stage, TrainOptions, run_training};
     use wonder3d::diffusion::training_set::TrainingSet;
 
     let stage = Stage::from_number(args.stage)?;
@@ -140,8 +153,13 @@ pub fn run(args: &TrainArgs) -> Result<()> {
         let (unet, vae, clip, scheduler) = pipeline.into_parts();
         pipeline = MultiViewPipeline::new(unet.with_cross_domain_attention(args.seed)?, vae, clip, scheduler)?;
     }
+    let lr_schedule = match args.lr_schedule {
+        LrScheduleArg::Constant => LrSchedule::Constant,
+        LrScheduleArg::Linear => LrSchedule::LinearToZero { end: args.steps as usize },
+    };
     let mut options = TrainOptions::for_stage(stage)
         .with_warmup_steps(args.warmup as usize)
+        .with_lr_schedule(lr_schedule)
         .with_gradient_accumulation(args.accumulate as usize)
         .with_seed(args.seed)
         .with_ema_decay(args.ema_decay)
