@@ -75,6 +75,35 @@ fn a_stage_runs_resumes_and_its_checkpoint_generates() {
     ]);
     assert!(generated.status.success(), "{}", stderr(&generated));
     assert!(views.join("normal_front.png").is_file());
+    // A cool-down: after the warm-up the learning rate falls linearly to 0 at --steps.
+    let cool = dir.path().join("cool");
+    let args = [
+        "train",
+        "--stage",
+        "3",
+        "--data",
+        data.to_str().unwrap(),
+        "--init",
+        &tiny_weights(),
+        "--out",
+        cool.to_str().unwrap(),
+        "--steps",
+        "3",
+        "--lr",
+        "1e-3",
+        "--warmup",
+        "1",
+        "--lr-schedule",
+        "linear",
+        "--quiet",
+    ];
+    let out = wonder3d(&args);
+    assert!(out.status.success(), "{}", stderr(&out));
+    let log = std::fs::read_to_string(cool.join("train_log.jsonl")).unwrap();
+    let lrs: Vec<f64> =
+        log.lines().map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap()["lr"].as_f64().unwrap()).collect();
+    assert_eq!(lrs.len(), 3, "{log}");
+    assert!(lrs.iter().zip([0.0, 1e-3, 5e-4]).all(|(a, b)| (a - b).abs() < 1e-12), "{lrs:?}");
 }
 
 #[test]
