@@ -9,8 +9,8 @@ use std::time::Instant;
 
 use wonder3d::dataset::{Dataset, DatasetOptions};
 use wonder3d::diffusion::train::{
-    CHECKPOINT_DIR, EMA_DIR, RunEvent, RunOptions, STATE_FILE, Stage, TrainOptions, VaeTrainOptions, run_training,
-    train_vae,
+    CHECKPOINT_DIR, EMA_DIR, LrSchedule, RunEvent, RunOptions, STATE_FILE, Stage, TrainOptions, VaeTrainOptions,
+    run_training, train_vae,
 };
 use wonder3d::diffusion::training_set::{Background, TrainingSet};
 use wonder3d::diffusion::{
@@ -42,19 +42,72 @@ struct Phase {
     white: bool,
     seed: u64,
     ema_decay: Option<f64>,
+    /// The learning rate falls linearly to 0 over the phase after its warm-up (a cool-down)
+    /// instead of staying at its peak.
+    cool_down: bool,
 }
 
 /// Wonder3D++'s three stages on the dataset's three backgrounds, then two joint phases: the
 /// whole UNet with the cross-domain attention (Wonder3D v1's joint training) on white, the
 /// only background inference uses — a model this small generates garbage from an input on a
 /// background other than the one its sample was trained on (docs/training.md). The second
-/// joint phase continues the first with fresh optimizer moments and an EMA of the weights.
-const PHASES: [Phase; 5] = [
-    Phase { dir: "stage1", stage: Stage::MultiDomain, train_all: false, white: false, seed: 10, ema_decay: None },
-    Phase { dir: "stage2", stage: Stage::MixedDomain, train_all: false, white: false, seed: 11, ema_decay: None },
-    Phase { dir: "stage3", stage: Stage::CrossDomain, train_all: false, white: false, seed: 12, ema_decay: None },
-    Phase { dir: "joint", stage: Stage::CrossDomain, train_all: true, white: true, seed: 13, ema_decay: None },
-    Phase { dir: "joint2", stage: Stage::CrossDomain, train_all: true, white: true, seed: 1, ema_decay: Some(0.999) },
+/// joint phase continues the first with fresh optimizer moments and an EMA of the weights;
+/// the last phase starts from that average and cools the learning rate down to 0.
+const PHASES: [Phase; 6] = [
+    Phase {
+        dir: "stage1",
+        stage: Stage::MultiDomain,
+        train_all: false,
+        white: false,
+        seed: 10,
+        ema_decay: None,
+        cool_down: false,
+    },
+    Phase {
+        dir: "stage2",
+        stage: Stage::MixedDomain,
+        train_all: false,
+        white: false,
+        seed: 11,
+        ema_decay: None,
+        cool_down: false,
+    },
+    Phase {
+        dir: "stage3",
+        stage: Stage::CrossDomain,
+        train_all: false,
+        white: false,
+        seed: 12,
+        ema_decay: None,
+        cool_down: false,
+    },
+    Phase {
+        dir: "joint",
+        stage: Stage::CrossDomain,
+        train_all: true,
+        white: true,
+        seed: 13,
+        ema_decay: None,
+        cool_down: false,
+    },
+    Phase {
+        dir: "joint2",
+        stage: Stage::CrossDomain,
+        train_all: true,
+        white: true,
+        seed: 1,
+        ema_decay: Some(0.999),
+        cool_down: false,
+    },
+    Phase {
+        dir: "cooldown",
+        stage: Stage::CrossDomain,
+        train_all: true,
+        white: true,
+        seed: 2,
+        ema_decay: None,
+        cool_down: true,
+    },
 ];
 
 /// The schedule of one run.
@@ -64,10 +117,10 @@ pub(crate) struct Schedule {
     pub size: u32,
     pub vae_steps: usize,
     /// Steps of each phase: the three stages, then the joint phases ([`PHASES`]).
-    pub stage_steps: [usize; 5],
+    pub stage_steps: [usize; 6],
     /// Warm-up steps of each phase.
-    pub stage_warmup: [usize; 5],
-    pub stage_lr: [f64; 5],
+    pub stage_warmup: [usize; 6],
+    pub stage_lr: [f64; 6],
     /// Steps and learning rate of the decoder's fine-tune after the UNet ([`tune_decoder`]).
     pub decoder_steps: usize,
     pub decoder_lr: f64,
@@ -82,9 +135,9 @@ impl Schedule {
             samples: 12,
             size: 64,
             vae_steps: 1200,
-            stage_steps: [800, 6000, 1000, 3000, 16000],
-            stage_warmup: [40, 300, 75, 50, 50],
-            stage_lr: [5e-4, 3e-4, 2e-4, 1e-4, 1e-4],
+            stage_steps: [800, 6000, 1000, 3000, 24000, 2000],
+            stage_warmup: [40, 300, 75, 50, 50, 50],
+            stage_lr: [5e-4, 3e-4, 2e-4, 1e-4, 1e-4, 1e-4],
             decoder_steps: 1500,
             decoder_lr: 3e-4,
             objects_per_batch: 1,
@@ -102,8 +155,8 @@ impl Schedule {
             samples: 2,
             size: 64,
             vae_steps: 20,
-            stage_steps: [10, 10, 10, 10, 10],
-            stage_warmup: [1, 1, 1, 1, 1],
+            stage_steps: [10, 10, 10, 10, 10, 10],
+            stage_warmup: [1, 1, 1, 1, 1, 1],
             decoder_steps: 10,
             ..Self::full()
         }
@@ -212,6 +265,11 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
             .with_min_snr_gamma(schedule.min_snr_gamma)
             .with_train_all(phase.train_all)
             .with_ema_decay(phase.ema_decay)
+            .with_lr_schedule(if phase.cool_down {
+                LrSchedule::LinearToZero { end: steps }
+            } else {
+                LrSchedule::Constant
+            })
             .with_seed(phase.seed);
         let set = set.clone().with_background(phase.white.then_some(Background::White));
         let run = RunOptions::default()
@@ -254,7 +312,7 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
             "decoder_lr": schedule.decoder_lr, "min_snr_gamma": schedule.min_snr_gamma,
             "phases": PHASES.iter().map(|p| serde_json::json!({
                 "dir": p.dir, "stage": p.stage.number(), "train_all": p.train_all, "white_background": p.white,
-                "seed": p.seed, "ema_decay": p.ema_decay,
+                "seed": p.seed, "ema_decay": p.ema_decay, "cool_down": p.cool_down,
             })).collect::<Vec<_>>(),
         },
         "meshes": TRAIN_MESHES, "held_out": HELD_OUT_MESH,
