@@ -101,7 +101,7 @@ enum Task {
     /// the tiny checkpoint.
     GpuCheck,
     /// Train the small multi-view model (docs/training.md): dataset, VAE, three UNet stages,
-    /// two joint phases, the decoder's fine-tune.
+    /// two joint phases, a cool-down, the decoder's fine-tune.
     TrainSmall {
         /// Output folder (dataset, stage checkpoints and logs, final model).
         #[arg(long, default_value = "target/train-small")]

@@ -1,8 +1,8 @@
 //! `cargo xtask train-small`: the recipe of the small model shipped in `assets/model-small`
 //! (`docs/training.md`; `cargo xtask ship-small` puts a trained model there in f16): a training set rendered from the CC0 / CC BY meshes, a small VAE
 //! trained on its images, a frozen random CLIP image encoder, the multi-view UNet trained
-//! through Wonder3D++'s three stages and two joint phases on white backgrounds, each starting
-//! from the previous one, and last the VAE's decoder fine-tuned with its encoder frozen.
+//! through Wonder3D++'s three stages, two joint phases on white backgrounds and a cool-down
+//! (the learning rate falling to 0), each starting from the previous one, and last the VAE's decoder fine-tuned with its encoder frozen.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -116,7 +116,7 @@ pub(crate) struct Schedule {
     pub samples: usize,
     pub size: u32,
     pub vae_steps: usize,
-    /// Steps of each phase: the three stages, then the joint phases ([`PHASES`]).
+    /// Steps of each phase: the three stages, the joint phases, the cool-down ([`PHASES`]).
     pub stage_steps: [usize; 6],
     /// Warm-up steps of each phase.
     pub stage_warmup: [usize; 6],
@@ -135,7 +135,7 @@ impl Schedule {
             samples: 12,
             size: 64,
             vae_steps: 1200,
-            stage_steps: [800, 6000, 1000, 3000, 24000, 2000],
+            stage_steps: [800, 6000, 1000, 3000, 22000, 2000],
             stage_warmup: [40, 300, 75, 50, 50, 50],
             stage_lr: [5e-4, 3e-4, 2e-4, 1e-4, 1e-4, 1e-4],
             decoder_steps: 1500,
@@ -230,7 +230,7 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
         fresh_model(&set, &schedule, scheduler, &device, started)?
     };
 
-    // 4. The three stages and the joint phase.
+    // 4. The three stages, the joint phases and the cool-down.
     for (i, phase) in PHASES.iter().enumerate() {
         let stage = phase.stage;
         let steps = schedule.stage_steps[i];
