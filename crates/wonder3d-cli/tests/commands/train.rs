@@ -22,7 +22,8 @@ fn a_stage_runs_resumes_and_its_checkpoint_generates() {
     let dir = tempfile::tempdir().unwrap();
     let data = spot_dataset(dir.path(), "2");
     let run = dir.path().join("run");
-    let train = |steps: &str, resume: bool| {
+    // A tiny stage-3 run into `out` to `steps`, with `extra` arguments.
+    let train_into = |out: &std::path::Path, steps: &str, extra: &[&str]| {
         let mut args = vec![
             "train",
             "--stage",
@@ -32,7 +33,7 @@ fn a_stage_runs_resumes_and_its_checkpoint_generates() {
             "--init",
             &tiny_weights(),
             "--out",
-            run.to_str().unwrap(),
+            out.to_str().unwrap(),
             "--steps",
             steps,
             "--lr",
@@ -46,12 +47,11 @@ fn a_stage_runs_resumes_and_its_checkpoint_generates() {
         .into_iter()
         .map(String::from)
         .collect::<Vec<_>>();
-        if resume {
-            args.push("--resume".into());
-        }
+        args.extend(extra.iter().map(|a| a.to_string()));
         let args: Vec<&str> = args.iter().map(String::as_str).collect();
         wonder3d(&args)
     };
+    let train = |steps: &str, resume: bool| train_into(&run, steps, if resume { &["--resume"] } else { &[] });
     let first = train("2", false);
     assert!(first.status.success(), "{}", stderr(&first));
     let again = train("4", false);
@@ -77,27 +77,7 @@ fn a_stage_runs_resumes_and_its_checkpoint_generates() {
     assert!(views.join("normal_front.png").is_file());
     // A cool-down: after the warm-up the learning rate falls linearly to 0 at --steps.
     let cool = dir.path().join("cool");
-    let args = [
-        "train",
-        "--stage",
-        "3",
-        "--data",
-        data.to_str().unwrap(),
-        "--init",
-        &tiny_weights(),
-        "--out",
-        cool.to_str().unwrap(),
-        "--steps",
-        "3",
-        "--lr",
-        "1e-3",
-        "--warmup",
-        "1",
-        "--lr-schedule",
-        "linear",
-        "--quiet",
-    ];
-    let out = wonder3d(&args);
+    let out = train_into(&cool, "3", &["--lr-schedule", "linear"]);
     assert!(out.status.success(), "{}", stderr(&out));
     let log = std::fs::read_to_string(cool.join("train_log.jsonl")).unwrap();
     let lrs: Vec<f64> =
