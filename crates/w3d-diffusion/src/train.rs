@@ -130,7 +130,7 @@ impl LrSchedule {
         match *self {
             LrSchedule::Constant => 1.0,
             LrSchedule::LinearToZero { end } => {
-                (end.saturating_sub(step)) as f64 / (end.saturating_sub(warmup)).max(1) as f64
+                end.saturating_sub(step) as f64 / end.saturating_sub(warmup).max(1) as f64
             }
         }
     }

@@ -1,5 +1,6 @@
 //! `wonder3d train --stage 1|2|3 --data DIR --init MODEL --out DIR [--steps N] [--lr LR]
-//! [--lr-schedule constant|linear] [--objects-per-batch B] [--accumulate K] [--checkpoint-every C] [--seed S] [--resume]`:
+//! [--lr-schedule constant|linear] [--objects-per-batch B] [--accumulate K]
+//! [--checkpoint-every C] [--seed S] [--resume]`:
 //! trains the multi-view UNet of a model directory on a training set written by `wonder3d
 //! dataset`, one Wonder3D++ stage at a time (`docs/training.md`).
 

@@ -280,7 +280,8 @@ fn a_closed_mesh_wound_inward_is_rendered_outward() {
 #[test]
 fn the_demo_photographs_spot_as_its_training_sample_shows_it() {
     let options = DatasetOptions::default().with_samples(1).with_size(64).with_seed(0);
-    let object = &Dataset::prepare(&[asset("spot.obj")], &options).unwrap().objects()[0].clone();
+    let dataset = Dataset::prepare(&[asset("spot.obj")], &options).unwrap();
+    let object = &dataset.objects()[0];
     assert_eq!(object.stem, "spot");
     let draw = sample_draw(0, &object.stem, wonder3d::demo::PHOTO_SAMPLE, None);
     let trained = object.posed(&draw).unwrap();
