@@ -1206,6 +1206,8 @@ pub fn run_training(
             format!("a folder without a run in it ({} has one: resume it, or choose another folder)", out.display()),
         ));
     }
+    // Bad options are refused before the folder is made and the set encoded.
+    options.validate()?;
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let device = pipeline.unet().devices().into_iter().next().unwrap_or_default();
     let mut encoded = Vec::with_capacity(set.len());

@@ -106,6 +106,18 @@ fn train_refuses_bad_input_before_loading_the_model() {
     assert!(!out.status.success() && stderr(&out).contains("--stage"), "{}", stderr(&out));
     let out = wonder3d(&["train", "--stage", "1", "--data", "x", "--init", "y", "--out", "z", "--lr", "0"]);
     assert!(!out.status.success() && stderr(&out).contains("learning rate"), "{}", stderr(&out));
+    // A cool-down that would end inside the warm-up is named, and no run folder is left.
+    let data = spot_dataset(dir.path(), "1");
+    let run = dir.path().join("run");
+    let (data, run) = (data.to_str().unwrap(), run.to_str().unwrap());
+    let args = ["--steps", "5", "--warmup", "10", "--lr-schedule", "linear", "--quiet"];
+    let mut all = vec!["train", "--stage", "3", "--data", data, "--init"];
+    let weights = tiny_weights();
+    all.extend([weights.as_str(), "--out", run]);
+    all.extend(args);
+    let out = wonder3d(&all);
+    assert!(!out.status.success() && stderr(&out).contains("lr_schedule"), "{}", stderr(&out));
+    assert!(!dir.path().join("run").exists(), "a refused run left its folder");
 }
 
 /// `--device wgpu` in a build without the `wgpu` feature names the feature before the model
