@@ -16,6 +16,8 @@
 
 use rayon::prelude::*;
 
+use crate::cpu_gemm::{MatMut, MatRef, gemm_f32};
+
 /// Queries per work unit: the rows of one score block.
 const QUERY_BLOCK: usize = 128;
 /// Keys per score block. `QUERY_BLOCK × KEY_BLOCK` scores (256 KiB) stay in a core's L2 cache
@@ -51,6 +53,21 @@ impl AttentionShape {
 /// # Panics
 /// If a slice's length does not match `shape` (a programming error: the caller builds both).
 pub(crate) fn attention(q: &[f32], k: &[f32], v: &[f32], shape: AttentionShape) -> Vec<f32> {
+    attention_impl(q, k, v, shape, None)
+}
+
+/// [`attention`] that also returns, per sequence, query and head, the log of the softmax's
+/// normaliser `lse = max + ln Σ exp(s − max)` over that query's scores `s` (`[batch, queries,
+/// heads]`): what [`attention_backward`] needs to recompute the attention weights exactly
+/// without storing them.
+pub(crate) fn attention_with_lse(q: &[f32], k: &[f32], v: &[f32], shape: AttentionShape) -> (Vec<f32>, Vec<f32>) {
+    let mut lse = vec![0.0f32; shape.batch * shape.queries * shape.heads];
+    let out = attention_impl(q, k, v, shape, Some(&mut lse));
+    (out, lse)
+}
+
+/// The forward pass; writes the normalisers into `lse` when asked.
+fn attention_impl(q: &[f32], k: &[f32], v: &[f32], shape: AttentionShape, lse: Option<&mut [f32]>) -> Vec<f32> {
     let width = shape.width();
     assert_eq!(q.len(), shape.batch * shape.queries * width, "query length");
     assert_eq!(k.len(), shape.batch * shape.keys * width, "key length");
@@ -79,16 +96,190 @@ pub(crate) fn attention(q: &[f32], k: &[f32], v: &[f32], shape: AttentionShape) 
         chunks.push(chunk);
         rest = tail;
     }
-    units.into_par_iter().zip(chunks).for_each_init(Scratch::default, |scratch, ((b, q0), out_rows)| {
-        let rows = out_rows.len() / width;
-        let q_rows = &q[b * seq_q + q0 * width..b * seq_q + (q0 + rows) * width];
-        let k_seq = &k[b * seq_k..(b + 1) * seq_k];
-        let v_seq = &v[b * seq_k..(b + 1) * seq_k];
-        for h in 0..shape.heads {
-            query_block_head(q_rows, k_seq, v_seq, out_rows, h, rows, scale, shape, scratch);
+    // The normalisers of a unit are `rows × heads` consecutive values, in the units' order.
+    let mut lse_chunks: Vec<Option<&mut [f32]>> = Vec::with_capacity(units.len());
+    match lse {
+        Some(lse) => {
+            assert_eq!(lse.len(), shape.batch * shape.queries * shape.heads, "lse length");
+            let mut rest = lse;
+            for chunk in &chunks {
+                let (head, tail) = rest.split_at_mut(chunk.len() / width * shape.heads);
+                lse_chunks.push(Some(head));
+                rest = tail;
+            }
         }
-    });
+        None => lse_chunks.resize_with(units.len(), || None),
+    }
+    units.into_par_iter().zip(chunks).zip(lse_chunks).for_each_init(
+        Scratch::default,
+        |scratch, (((b, q0), out_rows), mut lse_rows)| {
+            let rows = out_rows.len() / width;
+            let q_rows = &q[b * seq_q + q0 * width..b * seq_q + (q0 + rows) * width];
+            let k_seq = &k[b * seq_k..(b + 1) * seq_k];
+            let v_seq = &v[b * seq_k..(b + 1) * seq_k];
+            for h in 0..shape.heads {
+                query_block_head(q_rows, k_seq, v_seq, out_rows, h, rows, scale, shape, scratch);
+                if let Some(lse_rows) = lse_rows.as_deref_mut() {
+                    for (i, (&m, &l)) in scratch.row_max.iter().zip(&scratch.row_sum).enumerate() {
+                        lse_rows[i * shape.heads + h] = m + l.ln();
+                    }
+                }
+            }
+        },
+    );
     out
+}
+
+/// Gradients of [`attention`] with respect to `q`, `k` and `v` (each in its input's layout),
+/// given the forward's output `out`, its normalisers `lse` ([`attention_with_lse`]) and the
+/// gradient `d_out` of the output.
+///
+/// The attention weights are recomputed block by block from `lse` (`p = exp(s − lse)`, exact to
+/// f32 rounding) instead of being stored, as flash attention's backward does; per block of
+/// queries and keys, with `D = rowsum(dO ∘ O)`: `dV += pᵀ·dO`, `dp = dO·Vᵀ`,
+/// `ds = p ∘ (dp − D)`, `dQ += scale·ds·K`, `dK += scale·dsᵀ·Q`. Work units are (sequence,
+/// head) pairs, each accumulating its own `dK`/`dV` columns.
+///
+/// # Panics
+/// If a slice's length does not match `shape` (a programming error: the caller builds all).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn attention_backward(
+    q: &[f32],
+    k: &[f32],
+    v: &[f32],
+    out: &[f32],
+    lse: &[f32],
+    d_out: &[f32],
+    shape: AttentionShape,
+) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+    let (width, d, heads) = (shape.width(), shape.head_dim, shape.heads);
+    let (seq_q, seq_k) = (shape.queries * width, shape.keys * width);
+    assert_eq!(q.len(), shape.batch * seq_q, "query length");
+    assert_eq!(out.len(), q.len(), "output length");
+    assert_eq!(d_out.len(), q.len(), "output gradient length");
+    assert_eq!(k.len(), shape.batch * seq_k, "key length");
+    assert_eq!(v.len(), k.len(), "value length");
+    assert_eq!(lse.len(), shape.batch * shape.queries * heads, "lse length");
+    let scale = 1.0 / (d as f32).sqrt();
+    let units: Vec<(usize, usize)> = (0..shape.batch).flat_map(|b| (0..heads).map(move |h| (b, h))).collect();
+    let parts: Vec<HeadGradients> = units
+        .par_iter()
+        .map_init(BackwardScratch::default, |scratch, &(b, h)| {
+            let col = h * d;
+            let (q_seq, o_seq, do_seq) =
+                (&q[b * seq_q..(b + 1) * seq_q], &out[b * seq_q..(b + 1) * seq_q], &d_out[b * seq_q..(b + 1) * seq_q]);
+            let (k_seq, v_seq) = (&k[b * seq_k..(b + 1) * seq_k], &v[b * seq_k..(b + 1) * seq_k]);
+            let mut g = HeadGradients {
+                dq: vec![0.0; shape.queries * d],
+                dk: vec![0.0; shape.keys * d],
+                dv: vec![0.0; shape.keys * d],
+            };
+            for q0 in (0..shape.queries).step_by(QUERY_BLOCK) {
+                let rows = QUERY_BLOCK.min(shape.queries - q0);
+                let q_rows = &q_seq[q0 * width + col..];
+                let do_rows = &do_seq[q0 * width + col..];
+                // D_i = Σ_c dO_ic · O_ic, and the normalisers of the block's queries.
+                scratch.delta.clear();
+                scratch.delta.extend((0..rows).map(|i| {
+                    let at = (q0 + i) * width + col;
+                    do_seq[at..at + d].iter().zip(&o_seq[at..at + d]).map(|(a, b)| a * b).sum::<f32>()
+                }));
+                scratch.lse.clear();
+                scratch.lse.extend((0..rows).map(|i| lse[(b * shape.queries + q0 + i) * heads + h]));
+                for k0 in (0..shape.keys).step_by(KEY_BLOCK) {
+                    let n = KEY_BLOCK.min(shape.keys - k0);
+                    scratch.p.resize(rows * n, 0.0);
+                    scratch.dp.resize(rows * n, 0.0);
+                    let (p, dp) = (&mut scratch.p[..rows * n], &mut scratch.dp[..rows * n]);
+                    let q_view = MatRef { data: q_rows, rows, cols: d, row_stride: width, col_stride: 1 };
+                    let k_block = &k_seq[k0 * width + col..];
+                    // p = exp(scale · Q·Kᵀ − lse).
+                    gemm_f32(
+                        MatMut { data: p, rows, cols: n, row_stride: n, col_stride: 1 },
+                        q_view,
+                        MatRef { data: k_block, rows: d, cols: n, row_stride: 1, col_stride: width },
+                        false,
+                        scale,
+                    );
+                    for (row, &shift) in p.chunks_exact_mut(n).zip(&scratch.lse) {
+                        exp_shifted_sum(row, shift);
+                    }
+                    // dV_j (+)= pᵀ · dO_i.
+                    gemm_f32(
+                        MatMut { data: &mut g.dv[k0 * d..], rows: n, cols: d, row_stride: d, col_stride: 1 },
+                        MatRef { data: p, rows: n, cols: rows, row_stride: 1, col_stride: n },
+                        MatRef { data: do_rows, rows, cols: d, row_stride: width, col_stride: 1 },
+                        q0 > 0,
+                        1.0,
+                    );
+                    // dp = dO_i · V_jᵀ, then ds = p ∘ (dp − D) in place.
+                    gemm_f32(
+                        MatMut { data: dp, rows, cols: n, row_stride: n, col_stride: 1 },
+                        MatRef { data: do_rows, rows, cols: d, row_stride: width, col_stride: 1 },
+                        MatRef { data: &v_seq[k0 * width + col..], rows: d, cols: n, row_stride: 1, col_stride: width },
+                        false,
+                        1.0,
+                    );
+                    for ((ds_row, p_row), &delta) in dp.chunks_exact_mut(n).zip(p.chunks_exact(n)).zip(&scratch.delta) {
+                        for (ds, &p) in ds_row.iter_mut().zip(p_row) {
+                            *ds = p * (*ds - delta);
+                        }
+                    }
+                    // dQ_i (+)= scale · ds · K_j.
+                    gemm_f32(
+                        MatMut { data: &mut g.dq[q0 * d..], rows, cols: d, row_stride: d, col_stride: 1 },
+                        MatRef { data: dp, rows, cols: n, row_stride: n, col_stride: 1 },
+                        MatRef { data: k_block, rows: n, cols: d, row_stride: width, col_stride: 1 },
+                        k0 > 0,
+                        scale,
+                    );
+                    // dK_j (+)= scale · dsᵀ · Q_i.
+                    gemm_f32(
+                        MatMut { data: &mut g.dk[k0 * d..], rows: n, cols: d, row_stride: d, col_stride: 1 },
+                        MatRef { data: dp, rows: n, cols: rows, row_stride: 1, col_stride: n },
+                        q_view,
+                        q0 > 0,
+                        scale,
+                    );
+                }
+            }
+            g
+        })
+        .collect();
+    let mut dq = vec![0.0f32; q.len()];
+    let mut dk = vec![0.0f32; k.len()];
+    let mut dv = vec![0.0f32; v.len()];
+    for (&(b, h), g) in units.iter().zip(&parts) {
+        let col = h * d;
+        scatter_head(&mut dq[b * seq_q..(b + 1) * seq_q], &g.dq, width, col, d);
+        scatter_head(&mut dk[b * seq_k..(b + 1) * seq_k], &g.dk, width, col, d);
+        scatter_head(&mut dv[b * seq_k..(b + 1) * seq_k], &g.dv, width, col, d);
+    }
+    (dq, dk, dv)
+}
+
+/// One (sequence, head) unit's gradients, `[tokens, head_dim]` each.
+struct HeadGradients {
+    dq: Vec<f32>,
+    dk: Vec<f32>,
+    dv: Vec<f32>,
+}
+
+/// Per-thread buffers of one backward unit.
+#[derive(Default)]
+struct BackwardScratch {
+    p: Vec<f32>,
+    dp: Vec<f32>,
+    delta: Vec<f32>,
+    lse: Vec<f32>,
+}
+
+/// Copies a head's `[tokens, d]` values into columns `col..col + d` of a token-major sequence
+/// of rows `width` wide.
+fn scatter_head(seq: &mut [f32], head: &[f32], width: usize, col: usize, d: usize) {
+    for (row, values) in seq.chunks_exact_mut(width).zip(head.chunks_exact(d)) {
+        row[col..col + d].copy_from_slice(values);
+    }
 }
 
 /// Per-thread buffers of one work unit.
@@ -165,75 +356,6 @@ fn query_block_head(
         for o in &mut out_rows[i * width + col..i * width + col + d] {
             *o *= inv;
         }
-    }
-}
-
-/// A read-only strided matrix view: element `(r, c)` is `data[r·row_stride + c·col_stride]`.
-struct MatRef<'a> {
-    data: &'a [f32],
-    rows: usize,
-    cols: usize,
-    row_stride: usize,
-    col_stride: usize,
-}
-
-/// A writable strided matrix view, laid out as [`MatRef`].
-struct MatMut<'a> {
-    data: &'a mut [f32],
-    rows: usize,
-    cols: usize,
-    row_stride: usize,
-    col_stride: usize,
-}
-
-/// Index of the last element a strided view touches, `None` for an empty view.
-fn last_index(rows: usize, cols: usize, row_stride: usize, col_stride: usize) -> Option<usize> {
-    (rows > 0 && cols > 0).then(|| (rows - 1) * row_stride + (cols - 1) * col_stride)
-}
-
-/// `dst = beta·lhs·rhs` (or `dst += beta·lhs·rhs` with `accumulate`), single-threaded (the
-/// caller parallelises over work units). A safe wrapper: the views' extents are checked
-/// against their slices before the `gemm` crate reads or writes through raw pointers.
-fn gemm_f32(dst: MatMut<'_>, lhs: MatRef<'_>, rhs: MatRef<'_>, accumulate: bool, beta: f32) {
-    assert_eq!(lhs.rows, dst.rows, "gemm: lhs rows");
-    assert_eq!(rhs.cols, dst.cols, "gemm: rhs cols");
-    assert_eq!(lhs.cols, rhs.rows, "gemm: inner dimension");
-    let Some(dst_last) = last_index(dst.rows, dst.cols, dst.row_stride, dst.col_stride) else { return };
-    assert!(dst_last < dst.data.len(), "gemm: destination view out of bounds");
-    if let Some(last) = last_index(lhs.rows, lhs.cols, lhs.row_stride, lhs.col_stride) {
-        assert!(last < lhs.data.len(), "gemm: lhs view out of bounds");
-    }
-    if let Some(last) = last_index(rhs.rows, rhs.cols, rhs.row_stride, rhs.col_stride) {
-        assert!(last < rhs.data.len(), "gemm: rhs view out of bounds");
-    }
-    let stride = |s: usize| isize::try_from(s).expect("gemm: stride fits isize");
-    // SAFETY: every element the call reads or writes lies in its view (checked above against
-    // the slices' lengths); `dst` is a unique borrow, so it aliases neither `lhs` nor `rhs`;
-    // with an inner dimension of 0 and `accumulate` false the crate writes `dst` without
-    // reading it.
-    #[allow(unsafe_code)]
-    unsafe {
-        gemm::gemm(
-            dst.rows,
-            dst.cols,
-            lhs.cols,
-            dst.data.as_mut_ptr(),
-            stride(dst.col_stride),
-            stride(dst.row_stride),
-            accumulate,
-            lhs.data.as_ptr(),
-            stride(lhs.col_stride),
-            stride(lhs.row_stride),
-            rhs.data.as_ptr(),
-            stride(rhs.col_stride),
-            stride(rhs.row_stride),
-            1.0,
-            beta,
-            false,
-            false,
-            false,
-            gemm::Parallelism::None,
-        );
     }
 }
 

@@ -10,6 +10,7 @@ use burn::tensor::module::{attention, conv2d, layer_norm};
 use burn::tensor::ops::{AttentionModuleOptions, ConvOptions, PadMode};
 use burn::tensor::{DType, FloatDType, Tensor, TensorData, s};
 
+use crate::flex_autodiff;
 use crate::weights::{Init, ParamSource};
 
 /// A fully connected layer `y = x·Wᵀ + b`; the weight is held transposed (`[in, out]`).
@@ -87,6 +88,11 @@ fn widen_f16_on_cpu<const D: usize>(t: &Tensor<D>) -> Option<Tensor<D>> {
     Some(Tensor::from_data(TensorData::new(wide, t.shape()), &t.device()))
 }
 
+/// Whether `device` is Burn's flex backend (with or without autodiff).
+pub(crate) fn on_flex(device: &burn::tensor::Device) -> bool {
+    matches!(device.clone().inner().as_dispatch(), DispatchDevice::Flex(_))
+}
+
 /// Whether `device` belongs to one of Burn's CPU backends (flex; ndarray with the feature),
 /// where the crate's own CPU kernels may run on the tensors' memory.
 fn on_cpu_backend(device: &burn::tensor::Device) -> bool {
@@ -105,7 +111,8 @@ pub enum ConvAlgorithm {
     /// flex [`ConvAlgorithm::Im2col`] for stride-1 convolutions whose column buffer stays at
     /// most [`IM2COL_MAX_FLOATS`] values and [`ConvAlgorithm::Direct`] otherwise; on ndarray
     /// (whose own conv2d is several times slower) always im2col; on GPU backends the backend's
-    /// conv2d.
+    /// conv2d. In training (autodiff) on flex, the crate's differentiable im2col kernel, whose
+    /// gradients are one GEMM per image each; elsewhere in training the backend's conv2d.
     #[default]
     Auto,
     /// Patches gathered by slicing (im2col) and multiplied with one GEMM: 1.1-4.7x faster than
@@ -156,24 +163,33 @@ impl Conv2d {
         self.forward_with(x, ConvAlgorithm::default())
     }
 
-    /// Applies the convolution with the given algorithm (both give the same result up to f32
+    /// Applies the convolution with the given algorithm (all give the same result up to f32
     /// rounding).
     pub fn forward_with(&self, x: Tensor<4>, algorithm: ConvAlgorithm) -> Tensor<4> {
         let bias = self.bias.as_ref().map(|b| b.val());
+        let weight = as_f32(self.weight.val());
+        let (s, p) = (self.stride, self.padding);
         let algorithm = match algorithm {
             ConvAlgorithm::Auto => {
                 let [n, c, h, w] = x.dims();
-                let [_, _, k, _] = self.weight.dims();
-                let (p, st) = (self.padding, self.stride);
-                let out = ((h + 2 * p).saturating_sub(k) / st + 1) * ((w + 2 * p).saturating_sub(k) / st + 1);
+                let [_, _, k, _] = weight.dims();
+                let out = ((h + 2 * p).saturating_sub(k) / s + 1) * ((w + 2 * p).saturating_sub(k) / s + 1);
                 match x.device().inner().as_dispatch() {
-                    // Training: the backend's conv2d has a native backward (two convolutions);
-                    // im2col's backward scatters each of the k² slices into a zeroed copy of
-                    // the input, several times slower.
+                    // Training on flex: the crate's differentiable im2col kernel, whose input
+                    // gradient is one GEMM per image (`flex_autodiff`).
+                    DispatchDevice::Flex(_) if x.is_autodiff() => {
+                        match flex_autodiff::conv2d_applies(&x, &weight, bias.as_ref(), s, p) {
+                            Some(strategy) => return flex_autodiff::conv2d_op(x, weight, bias, s, p, strategy),
+                            None => ConvAlgorithm::Direct,
+                        }
+                    }
+                    // Training elsewhere: the backend's conv2d has a native backward (two
+                    // convolutions); im2col by slicing would scatter each of the k² slices into
+                    // a zeroed copy of the input, several times slower.
                     _ if x.is_autodiff() => ConvAlgorithm::Direct,
                     #[cfg(feature = "ndarray")]
                     DispatchDevice::NdArray(_) => ConvAlgorithm::Im2col,
-                    DispatchDevice::Flex(_) if st == 1 && n * c * k * k * out <= IM2COL_MAX_FLOATS => {
+                    DispatchDevice::Flex(_) if s == 1 && n * c * k * k * out <= IM2COL_MAX_FLOATS => {
                         ConvAlgorithm::Im2col
                     }
                     _ => ConvAlgorithm::Direct,
@@ -183,10 +199,9 @@ impl Conv2d {
         };
         match algorithm {
             ConvAlgorithm::Auto | ConvAlgorithm::Direct => {
-                let (s, p) = (self.stride, self.padding);
-                conv2d(x, as_f32(self.weight.val()), bias, ConvOptions::new([s, s], [p, p], [1, 1], 1))
+                conv2d(x, weight, bias, ConvOptions::new([s, s], [p, p], [1, 1], 1))
             }
-            ConvAlgorithm::Im2col => im2col_conv2d(x, as_f32(self.weight.val()), bias, self.stride, self.padding),
+            ConvAlgorithm::Im2col => im2col_conv2d(x, weight, bias, s, p),
         }
     }
 }
@@ -226,7 +241,9 @@ pub fn im2col_conv2d(
     y.reshape([n, o, ho, wo])
 }
 
-/// Group normalisation over `[n, c, h, w]` with per-channel affine parameters.
+/// Group normalisation over `[n, c, h, w]` with per-channel affine parameters (biased
+/// variance, as PyTorch). In training on flex it runs as one differentiable kernel, SiLU
+/// included for [`GroupNorm::forward_silu`]; elsewhere as Burn's tensor operations.
 #[derive(Module, Debug)]
 pub struct GroupNorm {
     /// Scale, `[c]`.
@@ -248,6 +265,27 @@ impl GroupNorm {
 
     /// Normalises each group of channels of each image to zero mean, unit variance.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        self.forward_maybe_silu(x, false)
+    }
+
+    /// `silu(forward(x))`.
+    pub fn forward_silu(&self, x: Tensor<4>) -> Tensor<4> {
+        self.forward_maybe_silu(x, true)
+    }
+
+    /// The normalisation, then SiLU when `then_silu`. In training on flex, one differentiable
+    /// kernel (`flex_autodiff`); elsewhere Burn's tensor operations.
+    fn forward_maybe_silu(&self, x: Tensor<4>, then_silu: bool) -> Tensor<4> {
+        let (weight, bias) = (self.weight.val(), self.bias.val());
+        if let Some(strategy) = flex_autodiff::group_norm_applies(&x, &weight, &bias, self.groups) {
+            return flex_autodiff::group_norm_op(x, weight, bias, self.groups, self.eps, then_silu, strategy);
+        }
+        let y = self.composed(x);
+        if then_silu { silu(y) } else { y }
+    }
+
+    /// The normalisation written with Burn's tensor operations.
+    fn composed(&self, x: Tensor<4>) -> Tensor<4> {
         let [n, c, h, w] = x.dims();
         let g = self.groups;
         let x = x.reshape([n, g, (c / g) * h * w]);
@@ -255,11 +293,6 @@ impl GroupNorm {
         let x = (x - mean) / (var + self.eps).sqrt();
         let x = x.reshape([n, c, h, w]);
         x * self.weight.val().reshape([1, c, 1, 1]) + self.bias.val().reshape([1, c, 1, 1])
-    }
-
-    /// `silu(forward(x))`.
-    pub fn forward_silu(&self, x: Tensor<4>) -> Tensor<4> {
-        silu(self.forward(x))
     }
 }
 
@@ -315,11 +348,16 @@ pub fn in_groups(x: Tensor<3>, group: usize, f: impl Fn(Tensor<3>) -> Tensor<3>)
 /// (the flash-attention recurrence), both products are `gemm` calls on cache-sized blocks and
 /// the exponentials are vectorised; at the multi-view UNet's shapes it is 1.7–3.5× faster
 /// than the backends' attention and on par with torch 2.4.1's (`docs/benchmarks.md`, "The attention
-/// kernel"). Elsewhere (GPU backends, training) it is Burn's `attention`, with queries
+/// kernel"). In training on flex the same kernel is one differentiable operation whose
+/// backward recomputes the attention weights block by block (flash attention's backward).
+/// Elsewhere (GPU backends, training on ndarray) it is Burn's `attention`, with queries
 /// processed in chunks so that at most [`ATTENTION_MAX_SCORES`] scores exist at a time.
 pub fn multi_head_attention(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usize) -> Tensor<3> {
     if cpu_kernel_applies(&q, &k, &v) {
         return cpu_kernel_attention(q, k, v, heads);
+    }
+    if let Some(strategy) = flex_autodiff::attention_applies(&q, &k, &v) {
+        return flex_autodiff::attention(q, k, v, heads, strategy);
     }
     burn_attention(q, k, v, heads, AttentionModuleOptions::default())
 }

@@ -1,9 +1,12 @@
 //! `nn::multi_head_attention` on every test backend against a reference that materialises the
-//! whole score matrix in f64, and the CPU kernel it runs at inference against Burn's own
-//! attention (which it uses under autodiff), at shapes that cross the kernel's query and key
-//! blocks.
+//! whole score matrix in f64; the CPU kernel it runs at inference and the fused differentiable
+//! attention it runs under autodiff on flex against Burn's own attention, values and
+//! gradients, at shapes that cross the kernels' query and key blocks.
 
 use crate::common::{test_devices, values};
+use burn::tensor::GradientCheckpointingStrategy;
+use burn::tensor::module::attention;
+use burn::tensor::ops::AttentionModuleOptions;
 use w3d_diffusion::nn::multi_head_attention;
 use w3d_diffusion::{Tensor, TensorData};
 
@@ -78,21 +81,88 @@ fn attention_matches_the_whole_score_matrix_across_block_edges() {
     }
 }
 
-/// Inference runs the crate's CPU kernel; under autodiff the same call runs Burn's attention.
-/// The two agree at a multi-view shape (6 views × 256 tokens, 8 heads of 40 channels).
+/// Burn's own attention on `[b, t, h·d]` sequences (what `multi_head_attention` computes),
+/// differentiated through its tensor operations under autodiff.
+fn burn_reference(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usize) -> Tensor<3> {
+    let [b, tq, w] = q.dims();
+    let tk = k.dims()[1];
+    let split = |t: Tensor<3>, len: usize| t.reshape([b, len, heads, w / heads]).swap_dims(1, 2);
+    let o = attention(split(q, tq), split(k, tk), split(v, tk), None, None, AttentionModuleOptions::default());
+    o.swap_dims(1, 2).reshape([b, tq, w])
+}
+
+/// Inference runs the crate's CPU kernel, training its fused differentiable attention; both
+/// agree with Burn's attention at a multi-view shape (6 views × 256 tokens, 8 heads of 40
+/// channels).
 #[test]
-fn inference_kernel_matches_burn_attention() {
+fn cpu_kernels_match_burn_attention() {
     let [batch, t, heads, d] = [2, 6 * 256, 8, 40];
     let w = heads * d;
     let (q, k, v) = (tokens(batch, t, w, 4, 2.0), tokens(batch, t, w, 5, 2.0), tokens(batch, t, w, 6, 1.0));
     for (name, device) in test_devices() {
-        let run = |device: &w3d_diffusion::Device| {
+        let ad = device.clone().autodiff();
+        let run = |device: &w3d_diffusion::Device, ours: bool| {
             let t = |x: &[f32]| Tensor::<3>::from_data(TensorData::new(x.to_vec(), [batch, t, w]), device);
-            values(multi_head_attention(t(&q), t(&k), t(&v), heads))
+            let out = if ours {
+                multi_head_attention(t(&q), t(&k), t(&v), heads)
+            } else {
+                burn_reference(t(&q), t(&k), t(&v), heads)
+            };
+            values(out)
         };
-        let (kernel, burn) = (run(&device), run(&device.clone().autodiff()));
-        let err = kernel.iter().zip(&burn).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
-        println!("{name}: kernel vs Burn attention max-abs difference {err:.1e}");
-        assert!(err < 1e-5, "{name}: kernel vs Burn attention {err}");
+        let burn = run(&device, false);
+        for (path, got) in [("inference", run(&device, true)), ("autodiff", run(&ad, true))] {
+            let err = got.iter().zip(&burn).map(|(a, b)| (a - b).abs()).fold(0.0, f32::max);
+            println!("{name} {path}: vs Burn attention max-abs difference {err:.1e}");
+            assert!(err < 1e-5, "{name} {path}: vs Burn attention {err}");
+        }
+    }
+}
+
+/// Gradients of `Σ out ∘ g` (a fixed random `g`) with respect to q, k and v: the fused
+/// attention's backward against Burn's attention differentiated op by op, with and without
+/// gradient checkpointing, at shapes that cross the 128-query and 512-key blocks, with one
+/// key, and with large scores.
+#[test]
+fn fused_attention_gradients_match_burn_autodiff() {
+    let cases = [([2, 200, 600, 2, 8], 1.0), ([3, 7, 1, 2, 4], 1.0), ([1, 130, 70, 1, 16], 6.0)];
+    for (name, device) in test_devices() {
+        for strategy in [GradientCheckpointingStrategy::Disabled, GradientCheckpointingStrategy::Balanced] {
+            for (shape, amp) in cases {
+                let [batch, tq, tk, heads, d] = shape;
+                let w = heads * d;
+                let (q, k, v) =
+                    (tokens(batch, tq, w, 7, amp), tokens(batch, tk, w, 8, amp), tokens(batch, tk, w, 9, 1.0));
+                let g = tokens(batch, tq, w, 10, 1.0);
+                let ad = device.clone().autodiff();
+                let run = |ours: bool| {
+                    let t = |x: &[f32], len: usize| {
+                        Tensor::<3>::from_data(TensorData::new(x.to_vec(), [batch, len, w]), &ad)
+                            .with_gradient_checkpointing_strategy(strategy)
+                            .require_grad()
+                    };
+                    let (tq_, tk_, tv_) = (t(&q, tq), t(&k, tk), t(&v, tk));
+                    let out = if ours {
+                        multi_head_attention(tq_.clone(), tk_.clone(), tv_.clone(), heads)
+                    } else {
+                        burn_reference(tq_.clone(), tk_.clone(), tv_.clone(), heads)
+                    };
+                    let gt = Tensor::<3>::from_data(TensorData::new(g.clone(), [batch, tq, w]), &ad)
+                        .with_gradient_checkpointing_strategy(strategy);
+                    let grads = (out.clone() * gt).sum().backward();
+                    let grad = |t: &Tensor<3>| values(t.grad(&grads).expect("a gradient"));
+                    [values(out), grad(&tq_), grad(&tk_), grad(&tv_)]
+                };
+                let (ours, burn) = (run(true), run(false));
+                for (what, (a, b)) in ["output", "dq", "dk", "dv"].iter().zip(ours.iter().zip(&burn)) {
+                    // Relative to the largest value, at least 1: with one key, dq and dk are 0 up
+                    // to rounding on both sides.
+                    let scale = b.iter().fold(0.0f32, |m, x| m.max(x.abs())).max(1.0);
+                    let err = a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max) / scale;
+                    println!("{name} {strategy:?} {shape:?} {what}: relative max-abs difference {err:.1e}");
+                    assert!(err < 1e-5, "{name} {strategy:?} {shape:?} {what}: {err}");
+                }
+            }
+        }
     }
 }

@@ -1,9 +1,12 @@
 //! The im2col + GEMM convolution equals the backend's `conv2d` for every kernel / stride /
-//! padding the models use, on both CPU backends.
+//! padding the models use, on both CPU backends; so does the differentiable convolution
+//! `nn::Conv2d` runs in training on flex, values and gradients.
 
-use crate::common::{max_abs, max_abs_diff, test_devices};
+use crate::common::{max_abs, max_abs_diff, test_devices, values};
+use burn::module::Param;
+use burn::tensor::GradientCheckpointingStrategy;
 use w3d_diffusion::gaussian_noise;
-use w3d_diffusion::nn::im2col_conv2d;
+use w3d_diffusion::nn::{Conv2d, ConvAlgorithm, im2col_conv2d};
 use w3d_diffusion::{Tensor, TensorData};
 
 #[test]
@@ -31,6 +34,58 @@ fn im2col_matches_direct_convolution() {
             );
             let err = max_abs_diff(ours, reference.clone()) / max_abs(reference).max(1.0);
             assert!(err < 1e-5, "{name} case {i}: relative error {err}");
+        }
+    }
+}
+
+/// Output and the gradients of `Σ y ∘ g` (a fixed random `g`) with respect to the input,
+/// weight and bias: `Conv2d`'s default path under autodiff (on flex, the crate's kernel)
+/// against Burn's `conv2d` differentiated by Burn, with and without gradient checkpointing
+/// and with and without a bias.
+#[test]
+fn training_convolution_gradients_match_burn_autodiff() {
+    // (c_in, c_out, h, w, kernel, stride, padding, bias)
+    let cases = [
+        (5, 7, 9, 11, 3, 1, 1, true),
+        (5, 7, 10, 12, 3, 2, 1, true),
+        (4, 6, 9, 9, 3, 2, 0, false),
+        (6, 3, 8, 5, 1, 1, 0, true),
+        (3, 8, 12, 18, 6, 6, 0, false),
+    ];
+    for (name, device) in test_devices() {
+        for strategy in [GradientCheckpointingStrategy::Disabled, GradientCheckpointingStrategy::Balanced] {
+            for (i, &(c_in, c_out, h, w, k, s, p, with_bias)) in cases.iter().enumerate() {
+                let seed = 100 + 10 * i as u64;
+                let leaf = |t: Tensor<4>| t.autodiff().with_gradient_checkpointing_strategy(strategy);
+                let run = |algorithm: ConvAlgorithm| {
+                    let x = leaf(gaussian_noise([3, c_in, h, w], seed, &device)).require_grad();
+                    let conv = Conv2d {
+                        weight: Param::from_tensor(leaf(gaussian_noise([c_out, c_in, k, k], seed + 1, &device))),
+                        bias: with_bias.then(|| {
+                            let b: Tensor<1> = gaussian_noise([c_out], seed + 2, &device);
+                            Param::from_tensor(b.autodiff().with_gradient_checkpointing_strategy(strategy))
+                        }),
+                        stride: s,
+                        padding: p,
+                    };
+                    let y = conv.forward_with(x.clone(), algorithm);
+                    let g = leaf(gaussian_noise(y.dims(), seed + 3, &device));
+                    let grads = (y.clone() * g).sum().backward();
+                    let mut out = vec![values(y), values(x.grad(&grads).expect("input gradient"))];
+                    out.push(values(conv.weight.val().grad(&grads).expect("weight gradient")));
+                    if let Some(b) = &conv.bias {
+                        out.push(values(b.val().grad(&grads).expect("bias gradient")));
+                    }
+                    out
+                };
+                let (ours, burn) = (run(ConvAlgorithm::Auto), run(ConvAlgorithm::Direct));
+                for (what, (a, b)) in ["output", "dx", "dw", "db"].iter().zip(ours.iter().zip(&burn)) {
+                    let scale = b.iter().fold(0.0f32, |m, x| m.max(x.abs())).max(1.0);
+                    let err = a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max) / scale;
+                    println!("{name} {strategy:?} case {i} {what}: relative max-abs difference {err:.1e}");
+                    assert!(err < 1e-5, "{name} {strategy:?} case {i} {what}: {err}");
+                }
+            }
         }
     }
 }

@@ -1,0 +1,265 @@
+//! 2-D convolution and its gradients on the CPU, on plain `f32` slices: im2col + one GEMM per
+//! image, the kernel [`crate::nn::Conv2d`] runs in training on Burn's flex backend.
+//!
+//! Why a kernel of our own: differentiating Burn's `conv2d` on flex computes the input's
+//! gradient as a transposed convolution, whose flex kernel was the largest single cost of a
+//! training step of the small UNet (`docs/benchmarks.md`, "Training step"). Here the forward,
+//! the input gradient and the weight gradient are each one GEMM per image against the image's
+//! column matrix (rebuilt in the backward rather than stored), and images are the work units.
+//!
+//! Layouts are PyTorch's: images `[n, c, h, w]`, weights `[o, c, k, k]`, all row-major.
+
+use rayon::prelude::*;
+
+use crate::cpu_gemm::{MatMut, MatRef, gemm_f32};
+
+/// Shape of a square-kernel convolution with zero padding.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct ConvShape {
+    /// Images.
+    pub batch: usize,
+    /// Input channels.
+    pub c_in: usize,
+    /// Input height in pixels.
+    pub height: usize,
+    /// Input width in pixels.
+    pub width: usize,
+    /// Output channels.
+    pub c_out: usize,
+    /// Kernel side in pixels.
+    pub kernel: usize,
+    /// Stride in pixels.
+    pub stride: usize,
+    /// Zero padding on each side in pixels.
+    pub padding: usize,
+}
+
+impl ConvShape {
+    /// Output height and width (PyTorch's `(h + 2p − k) / s + 1`); `None` when the kernel does
+    /// not fit the padded image or the stride is 0.
+    pub fn output(&self) -> Option<(usize, usize)> {
+        let side = |n: usize| (n + 2 * self.padding).checked_sub(self.kernel).map(|r| r / self.stride + 1);
+        if self.stride == 0 || self.kernel == 0 {
+            return None;
+        }
+        Some((side(self.height)?, side(self.width)?))
+    }
+
+    fn out_pixels(&self) -> usize {
+        self.output().map_or(0, |(h, w)| h * w)
+    }
+
+    /// Rows of the column matrix: `c · k²`.
+    fn patch(&self) -> usize {
+        self.c_in * self.kernel * self.kernel
+    }
+
+    /// Whether the column matrix is the image itself (1×1, stride 1, no padding).
+    fn pointwise(&self) -> bool {
+        self.kernel == 1 && self.stride == 1 && self.padding == 0
+    }
+}
+
+/// `x` convolved with `weight` plus `bias`: `[n, o, ho, wo]`.
+///
+/// # Panics
+/// If a slice's length does not match `shape` or the kernel does not fit (the caller checks).
+pub(crate) fn conv2d(x: &[f32], weight: &[f32], bias: Option<&[f32]>, shape: ConvShape) -> Vec<f32> {
+    check(x, weight, shape);
+    let (patch, pixels) = (shape.patch(), shape.out_pixels());
+    let image = shape.c_in * shape.height * shape.width;
+    let mut out = vec![0.0f32; shape.batch * shape.c_out * pixels];
+    if out.is_empty() {
+        return out;
+    }
+    out.par_chunks_mut(shape.c_out * pixels).enumerate().for_each_init(Vec::new, |cols, (n, y)| {
+        let x_n = &x[n * image..(n + 1) * image];
+        let cols = columns(x_n, shape, cols);
+        gemm_f32(
+            MatMut { data: y, rows: shape.c_out, cols: pixels, row_stride: pixels, col_stride: 1 },
+            MatRef { data: weight, rows: shape.c_out, cols: patch, row_stride: patch, col_stride: 1 },
+            MatRef { data: cols, rows: patch, cols: pixels, row_stride: pixels, col_stride: 1 },
+            false,
+            1.0,
+        );
+        if let Some(bias) = bias {
+            for (row, &b) in y.chunks_exact_mut(pixels).zip(bias) {
+                row.iter_mut().for_each(|v| *v += b);
+            }
+        }
+    });
+    out
+}
+
+/// Gradients of [`conv2d`] given the output's gradient `d_out` (`[n, o, ho, wo]`): of the input
+/// (`[n, c, h, w]`), the weight (`[o, c, k, k]`) and the bias (`[o]`), each only when asked.
+///
+/// # Panics
+/// As [`conv2d`].
+pub(crate) fn conv2d_backward(
+    x: &[f32],
+    weight: &[f32],
+    d_out: &[f32],
+    shape: ConvShape,
+    want: [bool; 3],
+) -> [Option<Vec<f32>>; 3] {
+    check(x, weight, shape);
+    let (patch, pixels) = (shape.patch(), shape.out_pixels());
+    let image = shape.c_in * shape.height * shape.width;
+    let out_image = shape.c_out * pixels;
+    assert_eq!(d_out.len(), shape.batch * out_image, "output gradient length");
+    let [want_x, want_w, want_b] = want;
+    // Per image: the input gradient (written in place) and a partial weight gradient.
+    let mut dx = want_x.then(|| vec![0.0f32; x.len()]);
+    let mut dx_chunks: Vec<Option<&mut [f32]>> = match dx.as_mut() {
+        Some(dx) => dx.chunks_mut(image.max(1)).map(Some).collect(),
+        None => (0..shape.batch).map(|_| None).collect(),
+    };
+    dx_chunks.resize_with(shape.batch, || None);
+    let partial_dw: Vec<Vec<f32>> = dx_chunks
+        .into_par_iter()
+        .enumerate()
+        .map_init(
+            || (Vec::new(), Vec::new()),
+            |(cols, d_cols), (n, dx_n)| {
+                let dy_n = MatRef {
+                    data: &d_out[n * out_image..(n + 1) * out_image],
+                    rows: shape.c_out,
+                    cols: pixels,
+                    row_stride: pixels,
+                    col_stride: 1,
+                };
+                let mut dw = Vec::new();
+                if want_w {
+                    // dW (c_out × patch) = dY_n · colsᵀ.
+                    let cols = columns(&x[n * image..(n + 1) * image], shape, cols);
+                    dw = vec![0.0f32; shape.c_out * patch];
+                    gemm_f32(
+                        MatMut { data: &mut dw, rows: shape.c_out, cols: patch, row_stride: patch, col_stride: 1 },
+                        dy_n,
+                        MatRef { data: cols, rows: pixels, cols: patch, row_stride: 1, col_stride: pixels },
+                        false,
+                        1.0,
+                    );
+                }
+                if let Some(dx_n) = dx_n {
+                    // d_cols (patch × pixels) = Wᵀ · dY_n, then scattered back onto the image.
+                    let w_t = MatRef { data: weight, rows: patch, cols: shape.c_out, row_stride: 1, col_stride: patch };
+                    if shape.pointwise() {
+                        gemm_f32(
+                            MatMut { data: dx_n, rows: patch, cols: pixels, row_stride: pixels, col_stride: 1 },
+                            w_t,
+                            dy_n,
+                            false,
+                            1.0,
+                        );
+                    } else {
+                        d_cols.clear();
+                        d_cols.resize(patch * pixels, 0.0);
+                        gemm_f32(
+                            MatMut { data: d_cols, rows: patch, cols: pixels, row_stride: pixels, col_stride: 1 },
+                            w_t,
+                            dy_n,
+                            false,
+                            1.0,
+                        );
+                        scatter_columns(d_cols, dx_n, shape);
+                    }
+                }
+                dw
+            },
+        )
+        .collect();
+    let dw = want_w.then(|| {
+        let mut sum = vec![0.0f32; shape.c_out * patch];
+        for part in &partial_dw {
+            sum.iter_mut().zip(part).for_each(|(s, p)| *s += p);
+        }
+        sum
+    });
+    let db = want_b.then(|| {
+        let mut sum = vec![0.0f32; shape.c_out];
+        for dy_n in d_out.chunks_exact(out_image.max(1)) {
+            for (s, row) in sum.iter_mut().zip(dy_n.chunks_exact(pixels.max(1))) {
+                *s += row.iter().sum::<f32>();
+            }
+        }
+        sum
+    });
+    [dx, dw, db]
+}
+
+fn check(x: &[f32], weight: &[f32], shape: ConvShape) {
+    assert!(shape.output().is_some(), "convolution kernel larger than the padded image");
+    assert_eq!(x.len(), shape.batch * shape.c_in * shape.height * shape.width, "input length");
+    assert_eq!(weight.len(), shape.c_out * shape.patch(), "weight length");
+}
+
+/// The column matrix of one image (`[c·k², ho·wo]`, row `(c·k + ky)·k + kx` holding the input
+/// pixel each output pixel's kernel tap `(ky, kx)` reads, 0 in the padding); the image itself
+/// for a pointwise convolution, else built in `buffer`.
+fn columns<'a>(x_n: &'a [f32], shape: ConvShape, buffer: &'a mut Vec<f32>) -> &'a [f32] {
+    if shape.pointwise() {
+        return x_n;
+    }
+    let (ho, wo) = shape.output().expect("checked");
+    let (k, h, w) = (shape.kernel, shape.height, shape.width);
+    buffer.clear();
+    buffer.resize(shape.patch() * ho * wo, 0.0);
+    for (row, cols) in buffer.chunks_exact_mut(ho * wo).enumerate() {
+        let (c, ky, kx) = (row / (k * k), row / k % k, row % k);
+        let plane = &x_n[c * h * w..(c + 1) * h * w];
+        let (ox_range, ix0) = tap_columns(kx, w, wo, shape);
+        for (oy, out_row) in cols.chunks_exact_mut(wo).enumerate() {
+            let Some(iy) = tap_source(oy, ky, h, shape) else { continue };
+            let line = &plane[iy * w..(iy + 1) * w];
+            let out = &mut out_row[ox_range.clone()];
+            if shape.stride == 1 {
+                out.copy_from_slice(&line[ix0..ix0 + out.len()]);
+            } else {
+                for (v, &x) in out.iter_mut().zip(line[ix0..].iter().step_by(shape.stride)) {
+                    *v = x;
+                }
+            }
+        }
+    }
+    buffer
+}
+
+/// The adjoint of [`columns`]: adds each column-matrix entry onto the input pixel it was read
+/// from.
+fn scatter_columns(d_cols: &[f32], dx_n: &mut [f32], shape: ConvShape) {
+    let (ho, wo) = shape.output().expect("checked");
+    let (k, h, w) = (shape.kernel, shape.height, shape.width);
+    for (row, cols) in d_cols.chunks_exact(ho * wo).enumerate() {
+        let (c, ky, kx) = (row / (k * k), row / k % k, row % k);
+        let plane = &mut dx_n[c * h * w..(c + 1) * h * w];
+        let (ox_range, ix0) = tap_columns(kx, w, wo, shape);
+        for (oy, out_row) in cols.chunks_exact(wo).enumerate() {
+            let Some(iy) = tap_source(oy, ky, h, shape) else { continue };
+            let line = &mut plane[iy * w..(iy + 1) * w];
+            let values = &out_row[ox_range.clone()];
+            for (x, &v) in line[ix0..].iter_mut().step_by(shape.stride).zip(values) {
+                *x += v;
+            }
+        }
+    }
+}
+
+/// The input row kernel row `ky` of output row `oy` reads, `None` in the padding.
+fn tap_source(oy: usize, ky: usize, h: usize, shape: ConvShape) -> Option<usize> {
+    (oy * shape.stride + ky).checked_sub(shape.padding).filter(|&iy| iy < h)
+}
+
+/// For kernel column `kx`: the output columns whose tap lies inside the image (a range, as
+/// `ix = ox·s + kx − p` grows with `ox`) and the input column the first of them reads.
+fn tap_columns(kx: usize, w: usize, wo: usize, shape: ConvShape) -> (std::ops::Range<usize>, usize) {
+    let (s, p) = (shape.stride, shape.padding);
+    // First ox with ox·s + kx ≥ p; then all ox with ox·s + kx − p < w.
+    let first = p.saturating_sub(kx).div_ceil(s);
+    let end = (w + p).saturating_sub(kx).div_ceil(s).min(wo);
+    if first >= end {
+        return (0..0, 0);
+    }
+    (first..end, first * s + kx - p)
+}
