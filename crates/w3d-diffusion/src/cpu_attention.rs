@@ -419,7 +419,7 @@ fn exp_shifted_sum_portable(row: &mut [f32], shift: f32) -> f32 {
 /// Arguments below −87.3 (where `eˣ` is no longer a normal f32) give about 1e-38 instead of a
 /// subnormal: nothing next to the sum's own term of 1.
 #[inline(always)]
-fn exp_scalar(x: f32) -> f32 {
+pub(crate) fn exp_scalar(x: f32) -> f32 {
     const LOG2_E: f32 = std::f32::consts::LOG2_E;
     const LN2_HI: f32 = 0.693_359_4;
     const LN2_LO: f32 = -2.121_944_4e-4;

@@ -154,7 +154,7 @@ pub(crate) fn conv2d_backward(
                             1.0,
                         );
                     } else {
-                        d_cols.clear();
+                        // Written whole by the GEMM (no accumulation), so not cleared.
                         d_cols.resize(patch * pixels, 0.0);
                         gemm_f32(
                             MatMut { data: d_cols, rows: patch, cols: pixels, row_stride: pixels, col_stride: 1 },

@@ -171,13 +171,11 @@ fn check(x: &[f32], weight: &[f32], bias: &[f32], shape: GroupNormShape) {
     assert_eq!(bias.len(), shape.channels, "bias length");
 }
 
-/// `1/(1 + e^−v)`, without overflow for large negative `v`.
-#[inline]
+/// `1/(1 + e^−v)` from `e = e^−|v|` (never overflows), with the crate's branch-free
+/// exponential so that the loops around it vectorise.
+#[inline(always)]
 fn sigmoid(v: f32) -> f32 {
-    if v >= 0.0 {
-        1.0 / (1.0 + (-v).exp())
-    } else {
-        let e = v.exp();
-        e / (1.0 + e)
-    }
+    let e = crate::cpu_attention::exp_scalar(-v.abs());
+    let s = 1.0 / (1.0 + e);
+    if v >= 0.0 { s } else { e * s }
 }
