@@ -23,6 +23,15 @@ pub fn values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
     t.into_data().try_to_vec::<f32>().unwrap()
 }
 
+/// Largest absolute difference between `got` and `want`, relative to `want`'s largest
+/// magnitude or 1, whichever is larger (values that are 0 up to rounding on both sides, such
+/// as a gradient through a softmax over one key, then compare absolutely).
+pub fn relative_max_diff(got: &[f32], want: &[f32]) -> f32 {
+    assert_eq!(got.len(), want.len(), "lengths differ");
+    let scale = want.iter().fold(0.0f32, |m, x| m.max(x.abs())).max(1.0);
+    got.iter().zip(want).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max) / scale
+}
+
 /// Largest absolute difference between two tensors of the same shape.
 pub fn max_abs_diff<const D: usize>(a: Tensor<D>, b: Tensor<D>) -> f32 {
     assert_eq!(a.dims(), b.dims(), "shapes differ");

@@ -3,7 +3,7 @@
 //! attention it runs under autodiff on flex against Burn's own attention, values and
 //! gradients, at shapes that cross the kernels' query and key blocks.
 
-use crate::common::{test_devices, values};
+use crate::common::{relative_max_diff, test_devices, values};
 use burn::tensor::GradientCheckpointingStrategy;
 use burn::tensor::module::attention;
 use burn::tensor::ops::AttentionModuleOptions;
@@ -155,10 +155,7 @@ fn fused_attention_gradients_match_burn_autodiff() {
                 };
                 let (ours, burn) = (run(true), run(false));
                 for (what, (a, b)) in ["output", "dq", "dk", "dv"].iter().zip(ours.iter().zip(&burn)) {
-                    // Relative to the largest value, at least 1: with one key, dq and dk are 0 up
-                    // to rounding on both sides.
-                    let scale = b.iter().fold(0.0f32, |m, x| m.max(x.abs())).max(1.0);
-                    let err = a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max) / scale;
+                    let err = relative_max_diff(a, b);
                     println!("{name} {strategy:?} {shape:?} {what}: relative max-abs difference {err:.1e}");
                     assert!(err < 1e-5, "{name} {strategy:?} {shape:?} {what}: {err}");
                 }

@@ -2,7 +2,7 @@
 //! padding the models use, on both CPU backends; so does the differentiable convolution
 //! `nn::Conv2d` runs in training on flex, values and gradients.
 
-use crate::common::{max_abs, max_abs_diff, test_devices, values};
+use crate::common::{max_abs, max_abs_diff, relative_max_diff, test_devices, values};
 use burn::module::Param;
 use burn::tensor::GradientCheckpointingStrategy;
 use w3d_diffusion::gaussian_noise;
@@ -80,8 +80,7 @@ fn training_convolution_gradients_match_burn_autodiff() {
                 };
                 let (ours, burn) = (run(ConvAlgorithm::Auto), run(ConvAlgorithm::Direct));
                 for (what, (a, b)) in ["output", "dx", "dw", "db"].iter().zip(ours.iter().zip(&burn)) {
-                    let scale = b.iter().fold(0.0f32, |m, x| m.max(x.abs())).max(1.0);
-                    let err = a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max) / scale;
+                    let err = relative_max_diff(a, b);
                     println!("{name} {strategy:?} case {i} {what}: relative max-abs difference {err:.1e}");
                     assert!(err < 1e-5, "{name} {strategy:?} case {i} {what}: {err}");
                 }

@@ -3,7 +3,7 @@
 //! the gradients of the input, the scale and the shift, with and without the SiLU that
 //! follows it in the resnet blocks.
 
-use crate::common::{test_devices, values};
+use crate::common::{relative_max_diff, test_devices, values};
 use burn::module::Param;
 use burn::tensor::GradientCheckpointingStrategy;
 use burn::tensor::activation::silu;
@@ -59,8 +59,7 @@ fn training_group_norm_gradients_match_burn_autodiff() {
                     };
                     let (ours, burn) = (run(true), run(false));
                     for (what, (a, b)) in ["output", "dx", "dweight", "dbias"].iter().zip(ours.iter().zip(&burn)) {
-                        let scale = b.iter().fold(0.0f32, |m, x| m.max(x.abs())).max(1.0);
-                        let err = a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f32::max) / scale;
+                        let err = relative_max_diff(a, b);
                         println!("{name} {strategy:?} case {i} silu {then_silu} {what}: relative difference {err:.1e}");
                         assert!(err < 2e-5, "{name} {strategy:?} case {i} silu {then_silu} {what}: {err}");
                     }
