@@ -176,8 +176,11 @@ pub(crate) fn attention_backward(
             };
             for q0 in (0..shape.queries).step_by(QUERY_BLOCK) {
                 let rows = QUERY_BLOCK.min(shape.queries - q0);
-                let q_rows = &q_seq[q0 * width + col..];
-                let do_rows = &do_seq[q0 * width + col..];
+                // This block's queries and output gradients, head `h`'s columns (rows × d).
+                let q_view =
+                    MatRef { data: &q_seq[q0 * width + col..], rows, cols: d, row_stride: width, col_stride: 1 };
+                let do_view =
+                    MatRef { data: &do_seq[q0 * width + col..], rows, cols: d, row_stride: width, col_stride: 1 };
                 // D_i = Σ_c dO_ic · O_ic, and the normalisers of the block's queries.
                 scratch.delta.clear();
                 scratch.delta.extend((0..rows).map(|i| {
@@ -191,7 +194,6 @@ pub(crate) fn attention_backward(
                     scratch.p.resize(rows * n, 0.0);
                     scratch.dp.resize(rows * n, 0.0);
                     let (p, dp) = (&mut scratch.p[..rows * n], &mut scratch.dp[..rows * n]);
-                    let q_view = MatRef { data: q_rows, rows, cols: d, row_stride: width, col_stride: 1 };
                     let k_block = &k_seq[k0 * width + col..];
                     // p = exp(scale · Q·Kᵀ − lse).
                     gemm_f32(
@@ -208,14 +210,14 @@ pub(crate) fn attention_backward(
                     gemm_f32(
                         MatMut { data: &mut g.dv[k0 * d..], rows: n, cols: d, row_stride: d, col_stride: 1 },
                         MatRef { data: p, rows: n, cols: rows, row_stride: 1, col_stride: n },
-                        MatRef { data: do_rows, rows, cols: d, row_stride: width, col_stride: 1 },
+                        do_view,
                         q0 > 0,
                         1.0,
                     );
                     // dp = dO_i · V_jᵀ, then ds = p ∘ (dp − D) in place.
                     gemm_f32(
                         MatMut { data: dp, rows, cols: n, row_stride: n, col_stride: 1 },
-                        MatRef { data: do_rows, rows, cols: d, row_stride: width, col_stride: 1 },
+                        do_view,
                         MatRef { data: &v_seq[k0 * width + col..], rows: d, cols: n, row_stride: 1, col_stride: width },
                         false,
                         1.0,

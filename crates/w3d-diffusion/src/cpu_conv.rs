@@ -170,6 +170,8 @@ pub(crate) fn conv2d_backward(
             },
         )
         .collect();
+    // Summed in image order, not reduced per thread: the sum, and so training, stays
+    // bit-for-bit reproducible (a resumed run repeats the uninterrupted one exactly).
     let dw = want_w.then(|| {
         let mut sum = vec![0.0f32; shape.c_out * patch];
         for part in &partial_dw {

@@ -18,6 +18,7 @@
 //! (`tests/parity_cases/attention.rs`, `tests/parity_cases/conv.rs`,
 //! `tests/parity_cases/group_norm.rs`).
 
+use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::{BalancedCheckpointing, CheckpointStrategy, NoCheckpointing};
 use burn::backend::autodiff::grads::Gradients;
@@ -26,7 +27,7 @@ use burn::backend::flex::FlexTensor;
 use burn::backend::{Autodiff, Flex};
 use std::sync::Arc;
 
-use burn::tensor::{DType, GradientCheckpointingStrategy, Tensor, TensorData};
+use burn::tensor::{DType, GradientCheckpointingStrategy, Shape, Tensor, TensorData};
 
 use crate::cpu_attention::{AttentionShape, attention_backward, attention_with_lse};
 use crate::cpu_conv::{ConvShape, conv2d, conv2d_backward};
@@ -196,12 +197,12 @@ impl Backward<Flex, 3> for FusedAttention {
         let s = &ops.state;
         let (dq, dk, dv) =
             attention_backward(f32s(&s.q), f32s(&s.k), f32s(&s.v), f32s(&s.out), &s.lse, f32s(&grad), s.shape);
-        let [pq, pk, pv] = ops.parents;
-        for (parent, values, like) in [(pq, dq, &s.q), (pk, dk, &s.k), (pv, dv, &s.v)] {
-            if let Some(node) = parent {
-                grads.register::<Flex>(node.id, tensor(values, like));
-            }
-        }
+        let parents = ops.parents.iter().map(|p| p.as_ref().map(|node| node.id));
+        register_grads(
+            grads,
+            parents,
+            [(Some(dq), shape_of(&s.q)), (Some(dk), shape_of(&s.k)), (Some(dv), shape_of(&s.v))],
+        );
     }
 }
 
@@ -243,13 +244,8 @@ impl<const N: usize> Backward<Flex, N> for FusedConv2d<N> {
         let s = &ops.state;
         let want = [0, 1, 2].map(|i| ops.parents.get(i).is_some_and(Option::is_some));
         let [dx, dw, db] = conv2d_backward(f32s(&s.x), f32s(&s.weight), f32s(&grad), s.shape, want);
-        let bias_like = FlexTensor::zeros([s.shape.c_out].into(), DType::F32);
-        let likes = [&s.x, &s.weight, &bias_like];
-        for ((parent, values), like) in ops.parents.iter().zip([dx, dw, db]).zip(likes) {
-            if let (Some(node), Some(values)) = (parent, values) {
-                grads.register::<Flex>(node.id, tensor(values, like));
-            }
-        }
+        let parents = ops.parents.iter().map(|p| p.as_ref().map(|node| node.id));
+        register_grads(grads, parents, [(dx, shape_of(&s.x)), (dw, shape_of(&s.weight)), (db, [s.shape.c_out].into())]);
     }
 }
 
@@ -305,12 +301,12 @@ impl Backward<Flex, 3> for FusedGroupNorm {
         let s = &ops.state;
         let (dx, dw, db) =
             group_norm_backward(f32s(&s.x), f32s(&s.weight), f32s(&s.bias), &s.stats, f32s(&grad), s.shape, s.silu);
-        let [px, pw, pb] = ops.parents;
-        for (parent, values, like) in [(px, dx, &s.x), (pw, dw, &s.weight), (pb, db, &s.bias)] {
-            if let Some(node) = parent {
-                grads.register::<Flex>(node.id, tensor(values, like));
-            }
-        }
+        let parents = ops.parents.iter().map(|p| p.as_ref().map(|node| node.id));
+        register_grads(
+            grads,
+            parents,
+            [(Some(dx), shape_of(&s.x)), (Some(dw), shape_of(&s.weight)), (Some(db), shape_of(&s.bias))],
+        );
     }
 }
 
@@ -337,9 +333,23 @@ fn fused_group_norm<C: FlexAutodiff>(
     C::from_primitive(result)
 }
 
-/// A flex tensor of `values` with `like`'s shape.
-fn tensor(values: Vec<f32>, like: &FlexTensor) -> FlexTensor {
-    FlexTensor::from_data(TensorData::new(values, like.layout().shape().clone()))
+/// Registers each computed gradient (`values`, shaped as given) for its parent node, where the
+/// parent is tracked (`Some` id): the one way every node here hands its gradients back.
+fn register_grads(
+    grads: &mut Gradients,
+    parents: impl IntoIterator<Item = Option<NodeId>>,
+    gradients: impl IntoIterator<Item = (Option<Vec<f32>>, Shape)>,
+) {
+    for (parent, (values, shape)) in parents.into_iter().zip(gradients) {
+        if let (Some(id), Some(values)) = (parent, values) {
+            grads.register::<Flex>(id, FlexTensor::from_data(TensorData::new(values, shape)));
+        }
+    }
+}
+
+/// The shape of a flex tensor.
+fn shape_of(t: &FlexTensor) -> Shape {
+    t.layout().shape().clone()
 }
 
 /// `t` with contiguous storage (a copy only when it is a strided view).
