@@ -2,7 +2,8 @@
 //! (`docs/training.md`; `cargo xtask ship-small` puts a trained model there in f16): a training set rendered from the CC0 / CC BY meshes, a small VAE
 //! trained on its images, a frozen random CLIP image encoder, the multi-view UNet trained
 //! through Wonder3D++'s three stages, two joint phases on white backgrounds and a cool-down
-//! (the learning rate falling to 0), each starting from the previous one, and last the VAE's decoder fine-tuned with its encoder frozen.
+//! (the learning rate falling to 0), each starting from the previous one, and last the VAE's
+//! decoder fine-tuned in two passes with its encoder frozen.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -302,15 +303,10 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
         eprintln!("[{:6.0}s] {} done", started.elapsed().as_secs_f64(), phase.dir);
     }
     // 5. The decoder, sharpened on the latents of the frozen encoder, in two passes.
-    for (steps, lr) in schedule.decoder_steps.into_iter().zip(schedule.decoder_lr) {
-        let t = Instant::now();
-        pipeline = tune_decoder(pipeline, &set, steps, lr)?;
-        eprintln!(
-            "[{:6.0}s] decoder tuned for {steps} steps at lr {lr:e} in {:.0} s",
-            started.elapsed().as_secs_f64(),
-            t.elapsed().as_secs_f64()
-        );
-    }
+    let passes: Vec<(usize, f64)> = schedule.decoder_steps.into_iter().zip(schedule.decoder_lr).collect();
+    let t = Instant::now();
+    pipeline = tune_decoder(pipeline, &set, &passes)?;
+    eprintln!("[{:6.0}s] decoder tuned in {:.0} s", started.elapsed().as_secs_f64(), t.elapsed().as_secs_f64());
     let model = out.join("model");
     pipeline.save(&model).map_err(err)?;
     let wall = started.elapsed().as_secs_f64();
@@ -389,12 +385,12 @@ fn fresh_model(
 /// Fine-tunes the decoder of `pipeline`'s VAE on the normal and colour views of `set` on
 /// white (what inference decodes), the encoder frozen: the latent space the UNet was trained
 /// in stays exactly as it was, and the decoder learns to draw it more sharply
-/// (docs/training.md, "The decoder").
+/// (docs/training.md, "The decoder"). One pass per `(steps, learning rate)` of `passes`, each
+/// with fresh optimizer moments; the set's images are read once for all of them.
 pub(crate) fn tune_decoder(
     pipeline: MultiViewPipeline,
     set: &TrainingSet,
-    steps: usize,
-    learning_rate: f64,
+    passes: &[(usize, f64)],
 ) -> Result<MultiViewPipeline, String> {
     let set = set.clone().with_background(Some(Background::White));
     let mut images = Vec::new();
@@ -403,28 +399,30 @@ pub(crate) fn tune_decoder(
         images.extend(normal);
         images.extend(colour);
     }
-    let (unet, vae, clip, scheduler) = pipeline.into_parts();
-    let options = VaeTrainOptions::default()
-        .with_steps(steps)
-        .with_batch(4)
-        .with_learning_rate(learning_rate)
-        .with_sample_posterior(false)
-        .with_decoder_only(true)
-        .with_seed(21);
-    let t = Instant::now();
-    let mut recent = Vec::new();
-    let vae = train_vae(vae, &images, &options, &mut |step, loss| {
-        recent.push(loss);
-        if step % 100 == 0 || step == steps {
-            let mean = recent.iter().sum::<f32>() / recent.len() as f32;
-            recent.clear();
-            eprintln!(
-                "  decoder step {step}/{steps}: mean loss {mean:.5} ({:.2} s/step)",
-                t.elapsed().as_secs_f64() / step as f64
-            );
-        }
-    })
-    .map_err(err)?;
+    let (unet, mut vae, clip, scheduler) = pipeline.into_parts();
+    for &(steps, learning_rate) in passes {
+        let options = VaeTrainOptions::default()
+            .with_steps(steps)
+            .with_batch(4)
+            .with_learning_rate(learning_rate)
+            .with_sample_posterior(false)
+            .with_decoder_only(true)
+            .with_seed(21);
+        let t = Instant::now();
+        let mut recent = Vec::new();
+        vae = train_vae(vae, &images, &options, &mut |step, loss| {
+            recent.push(loss);
+            if step % 100 == 0 || step == steps {
+                let mean = recent.iter().sum::<f32>() / recent.len() as f32;
+                recent.clear();
+                eprintln!(
+                    "  decoder step {step}/{steps} (lr {learning_rate:e}): mean loss {mean:.5} ({:.2} s/step)",
+                    t.elapsed().as_secs_f64() / step as f64
+                );
+            }
+        })
+        .map_err(err)?;
+    }
     MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)
 }
 
@@ -446,7 +444,7 @@ pub(crate) fn tune_decoder_command(model: &Path, data: &Path, out: &Path, steps:
         ));
     }
     let started = Instant::now();
-    let pipeline = tune_decoder(pipeline, &set, steps, lr)?;
+    let pipeline = tune_decoder(pipeline, &set, &[(steps, lr)])?;
     pipeline.save(out).map_err(err)?;
     eprintln!("[{:6.0}s] model with the tuned decoder written to {}", started.elapsed().as_secs_f64(), out.display());
     Ok(())
