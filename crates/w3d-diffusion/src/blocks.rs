@@ -4,7 +4,7 @@
 
 use burn::module::Module;
 use burn::tensor::Tensor;
-use burn::tensor::activation::{gelu, silu};
+use burn::tensor::activation::silu;
 
 use crate::ip_adapter::IpTokens;
 use crate::nn::{Conv2d, GroupNorm, LayerNorm, Linear, multi_head_attention};
@@ -303,14 +303,7 @@ impl TransformerBlock {
         let t = x.dims()[1];
         let two_inner = self.ff_proj.weight.dims()[1];
         let group = (FEED_FORWARD_MAX_VALUES / (t * two_inner).max(1)).max(1);
-        let geglu = |x: Tensor<3>| {
-            let h = self.ff_proj.forward(x);
-            let [n, t, two_inner] = h.dims();
-            let inner = two_inner / 2;
-            let hidden = h.clone().slice([0..n, 0..t, 0..inner]);
-            let gate = h.slice([0..n, 0..t, inner..two_inner]);
-            self.ff_out.forward(hidden * gelu(gate))
-        };
+        let geglu = |x: Tensor<3>| self.ff_out.forward(crate::nn::geglu(self.ff_proj.forward(x)));
         crate::nn::in_groups(x, group, geglu)
     }
 }

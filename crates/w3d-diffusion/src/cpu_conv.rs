@@ -170,26 +170,32 @@ pub(crate) fn conv2d_backward(
             },
         )
         .collect();
-    // Summed in image order, not reduced per thread: the sum, and so training, stays
-    // bit-for-bit reproducible (a resumed run repeats the uninterrupted one exactly).
+    // Each value summed in image order, not reduced per thread: the sum, and so training,
+    // stays bit-for-bit reproducible (a resumed run repeats the uninterrupted one exactly).
+    // The values are shared between the cores; the order of each one's sum is fixed.
     let dw = want_w.then(|| {
         let mut sum = vec![0.0f32; shape.c_out * patch];
-        for part in &partial_dw {
-            sum.iter_mut().zip(part).for_each(|(s, p)| *s += p);
-        }
+        sum.par_chunks_mut(SUM_CHUNK).enumerate().for_each(|(i, sum)| {
+            for part in &partial_dw {
+                sum.iter_mut().zip(&part[i * SUM_CHUNK..]).for_each(|(s, p)| *s += p);
+            }
+        });
         sum
     });
     let db = want_b.then(|| {
         let mut sum = vec![0.0f32; shape.c_out];
-        for dy_n in d_out.chunks_exact(out_image.max(1)) {
-            for (s, row) in sum.iter_mut().zip(dy_n.chunks_exact(pixels.max(1))) {
-                *s += row.iter().sum::<f32>();
+        sum.par_iter_mut().enumerate().for_each(|(o, s)| {
+            for dy_n in d_out.chunks_exact(out_image.max(1)) {
+                *s += dy_n[o * pixels..(o + 1) * pixels].iter().sum::<f32>();
             }
-        }
+        });
         sum
     });
     [dx, dw, db]
 }
+
+/// Weight-gradient values one parallel task sums over the images.
+const SUM_CHUNK: usize = 1 << 14;
 
 fn check(x: &[f32], weight: &[f32], shape: ConvShape) {
     assert!(shape.output().is_some(), "convolution kernel larger than the padded image");

@@ -1,6 +1,7 @@
 //! The crate's CPU kernels as differentiable operations on Burn's flex backend: multi-head
 //! attention ([`crate::cpu_attention`]), 2-D convolution ([`crate::cpu_conv`]) and group
-//! normalisation with its SiLU ([`crate::cpu_group_norm`]), each one node of Burn's autodiff
+//! normalisation with its SiLU ([`crate::cpu_group_norm`]) and the feed-forward's GEGLU gate
+//! ([`crate::cpu_geglu`]), each one node of Burn's autodiff
 //! graph with a hand-written backward, so that training on the CPU neither differentiates
 //! through the dozen tensor operations of Burn's attention or group norm nor computes a
 //! convolution's input gradient with flex's transposed convolution (`docs/benchmarks.md`,
@@ -14,9 +15,9 @@
 //! ([`crate::cpu_attention::attention_backward`]). The convolution keeps its input and weight
 //! and runs one GEMM per image for each gradient ([`crate::cpu_conv::conv2d_backward`]).
 //!
-//! All three agree with Burn's own operations, values and gradients, to f32 rounding
-//! (`tests/parity_cases/attention.rs`, `tests/parity_cases/conv.rs`,
-//! `tests/parity_cases/group_norm.rs`).
+//! All four agree with Burn's own operations, values and gradients, to f32 rounding (the
+//! GEGLU gate bit for bit; `tests/parity_cases/attention.rs`, `tests/parity_cases/conv.rs`,
+//! `tests/parity_cases/group_norm.rs`, `tests/parity_cases/geglu.rs`).
 
 use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
@@ -31,6 +32,7 @@ use burn::tensor::{DType, GradientCheckpointingStrategy, Shape, Tensor, TensorDa
 
 use crate::cpu_attention::{AttentionShape, attention_backward, attention_with_lse};
 use crate::cpu_conv::{ConvShape, conv2d, conv2d_backward};
+use crate::cpu_geglu::{geglu, geglu_backward};
 use crate::cpu_group_norm::{GroupNormShape, GroupStats, group_norm, group_norm_backward};
 
 /// Where the fused attention applies: `q`, `k` and `v` are f32 flex tensors under autodiff with
@@ -133,6 +135,23 @@ pub(crate) fn group_norm_op(
         GradientCheckpointingStrategy::Disabled => {
             fused_group_norm::<NoCheckpointing>(x, weight, bias, shape, eps, silu)
         }
+    }
+}
+
+/// Where the fused GEGLU gate applies: `projection` is an f32 flex tensor under autodiff (its
+/// checkpointing strategy is returned) whose last dimension is even and non-zero.
+pub(crate) fn geglu_applies(projection: &Tensor<3>) -> Option<GradientCheckpointingStrategy> {
+    let two_inner = projection.dims()[2];
+    autodiff_on_flex(projection).filter(|_| two_inner > 0 && two_inner.is_multiple_of(2))
+}
+
+/// `hidden · gelu(gate)` of the halves `[hidden, gate]` of the last dimension of `projection`
+/// (`[n, t, 2·inner]` → `[n, t, inner]`) as a single autodiff operation; `strategy` from
+/// [`geglu_applies`].
+pub(crate) fn geglu_op(projection: Tensor<3>, strategy: GradientCheckpointingStrategy) -> Tensor<3> {
+    match strategy {
+        GradientCheckpointingStrategy::Balanced => fused_geglu::<BalancedCheckpointing>(projection),
+        GradientCheckpointingStrategy::Disabled => fused_geglu::<NoCheckpointing>(projection),
     }
 }
 
@@ -328,6 +347,41 @@ fn fused_group_norm<C: FlexAutodiff>(
             let state = GroupNormState { x: xp, weight: wp, bias: bp, stats: Arc::new(stats), shape, silu };
             prep.finish(state, out)
         }
+        OpsKind::UnTracked(prep) => prep.finish(out),
+    };
+    C::from_primitive(result)
+}
+
+/// The GEGLU gate's backward record: the projection (shared, not copied).
+#[derive(Clone, Debug)]
+struct GegluState {
+    projection: FlexTensor,
+}
+
+#[derive(Debug)]
+struct FusedGeglu;
+
+impl Backward<Flex, 1> for FusedGeglu {
+    type State = GegluState;
+
+    fn backward(self, ops: Ops<Self::State, 1>, grads: &mut Gradients, _checkpointer: &mut Checkpointer) {
+        let grad = contiguous(grads.consume::<Flex>(&ops.node));
+        let projection = &ops.state.projection;
+        let inner = shape_of(projection).dims::<3>()[2] / 2;
+        let d_projection = geglu_backward(f32s(projection), f32s(&grad), inner);
+        let parents = ops.parents.iter().map(|p| p.as_ref().map(|node| node.id));
+        register_grads(grads, parents, [(Some(d_projection), shape_of(projection))]);
+    }
+}
+
+fn fused_geglu<C: FlexAutodiff>(projection: Tensor<3>) -> Tensor<3> {
+    let [n, t, two_inner] = projection.dims();
+    let projection = C::into_primitive(projection);
+    let values = contiguous(projection.primitive().clone());
+    let out = geglu(f32s(&values), two_inner / 2);
+    let out = FlexTensor::from_data(TensorData::new(out, [n, t, two_inner / 2]));
+    let result = match FusedGeglu.prepare::<C>([projection.node()]).compute_bound().stateful() {
+        OpsKind::Tracked(prep) => prep.finish(GegluState { projection: values }, out),
         OpsKind::UnTracked(prep) => prep.finish(out),
     };
     C::from_primitive(result)

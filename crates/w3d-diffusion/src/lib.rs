@@ -47,6 +47,7 @@ pub mod config;
 pub mod controlnet;
 mod cpu_attention;
 mod cpu_conv;
+mod cpu_geglu;
 mod cpu_gemm;
 mod cpu_group_norm;
 pub mod device;

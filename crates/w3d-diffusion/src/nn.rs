@@ -5,7 +5,7 @@
 
 use burn::backend::DispatchDevice;
 use burn::module::{Module, Param};
-use burn::tensor::activation::silu;
+use burn::tensor::activation::{gelu, silu};
 use burn::tensor::module::{attention, conv2d, layer_norm};
 use burn::tensor::ops::{AttentionModuleOptions, ConvOptions, PadMode};
 use burn::tensor::{DType, FloatDType, Tensor, TensorData, s};
@@ -318,6 +318,34 @@ impl LayerNorm {
     pub fn forward<const D: usize>(&self, x: Tensor<D>) -> Tensor<D> {
         layer_norm(x, self.weight.val(), Some(self.bias.val()), self.eps)
     }
+}
+
+/// The GEGLU gate `hidden · gelu(gate)` (exact GELU) of the halves `[hidden, gate]` of the
+/// last dimension of `projection`: `[n, t, 2·inner]` → `[n, t, inner]`.
+///
+/// On Burn's CPU backends this is the crate's kernel (one pass, on all cores), in training on
+/// flex a single differentiable operation with a one-pass backward; elsewhere Burn's slice,
+/// `gelu` and product. The kernel's arithmetic is flex's, so the values are the same either
+/// way.
+pub fn geglu(projection: Tensor<3>) -> Tensor<3> {
+    let [n, t, two_inner] = projection.dims();
+    let inner = two_inner / 2;
+    if projection.dtype() == DType::F32
+        && !projection.is_autodiff()
+        && on_cpu_backend(&projection.device())
+        && inner > 0
+    {
+        let device = projection.device();
+        let values = projection.into_data().try_into_vec::<f32>().expect("f32 values (checked above)");
+        let out = crate::cpu_geglu::geglu(&values, inner);
+        return Tensor::from_data(TensorData::new(out, [n, t, inner]), &device);
+    }
+    if let Some(strategy) = flex_autodiff::geglu_applies(&projection) {
+        return flex_autodiff::geglu_op(projection, strategy);
+    }
+    let hidden = projection.clone().slice([0..n, 0..t, 0..inner]);
+    let gate = projection.slice([0..n, 0..t, inner..two_inner]);
+    hidden * gelu(gate)
 }
 
 /// Largest attention score matrix (`batch · heads · queries · keys` values) computed at once;

@@ -14,6 +14,8 @@ mod common;
 mod controlnet;
 #[path = "parity_cases/enhancer.rs"]
 mod enhancer;
+#[path = "parity_cases/geglu.rs"]
+mod geglu;
 #[path = "parity_cases/group_norm.rs"]
 mod group_norm;
 // The conv tests share this test binary (one link instead of two).
