@@ -19,17 +19,23 @@ use rayon::prelude::*;
 /// projection between two cores, large enough that the scheduling is negligible.
 const ROWS_PER_TASK: usize = 64;
 
-/// `gelu(x)`, exact (error-function) form, as Burn flex computes it.
+/// `erf(x/√2)`, with the error function Burn flex's GELU uses.
 #[inline]
-fn gelu(x: f32) -> f32 {
-    0.5 * x * (1.0 + libm::erff(x / core::f32::consts::SQRT_2))
+fn erf_scaled(x: f32) -> f32 {
+    libm::erff(x / core::f32::consts::SQRT_2)
 }
 
-/// `d gelu(x) / dx`, as Burn flex's `gelu_backward` computes it.
+/// `gelu(x)`, exact (error-function) form, from `erf = erf_scaled(x)`, as Burn flex computes it.
 #[inline]
-fn gelu_derivative(x: f32) -> f32 {
+fn gelu(x: f32, erf: f32) -> f32 {
+    0.5 * x * (1.0 + erf)
+}
+
+/// `d gelu(x) / dx` from `erf = erf_scaled(x)`, as Burn flex's `gelu_backward` computes it.
+#[inline]
+fn gelu_derivative(x: f32, erf: f32) -> f32 {
     let inv_sqrt_2pi: f32 = 1.0 / (2.0 * core::f32::consts::PI).sqrt();
-    let cdf = 0.5 * (1.0 + libm::erff(x / core::f32::consts::SQRT_2));
+    let cdf = 0.5 * (1.0 + erf);
     let pdf = inv_sqrt_2pi * (-0.5 * x * x).exp();
     cdf + x * pdf
 }
@@ -45,7 +51,7 @@ pub(crate) fn geglu(projection: &[f32], inner: usize) -> Vec<f32> {
             for (out, row) in out.chunks_exact_mut(inner).zip(projection.chunks_exact(2 * inner)) {
                 let (hidden, gate) = row.split_at(inner);
                 for ((o, &h), &g) in out.iter_mut().zip(hidden).zip(gate) {
-                    *o = h * gelu(g);
+                    *o = h * gelu(g, erf_scaled(g));
                 }
             }
         },
@@ -71,8 +77,10 @@ pub(crate) fn geglu_backward(projection: &[f32], d_out: &[f32], inner: usize) ->
                 let (d_hidden, d_gate) = d_row.split_at_mut(inner);
                 for i in 0..inner {
                     let (h, g, dy) = (hidden[i], gate[i], d_out[i]);
-                    d_hidden[i] = dy * gelu(g);
-                    d_gate[i] = (dy * h) * gelu_derivative(g);
+                    // One error function for both halves (Burn evaluates it twice).
+                    let erf = erf_scaled(g);
+                    d_hidden[i] = dy * gelu(g, erf);
+                    d_gate[i] = (dy * h) * gelu_derivative(g, erf);
                 }
             }
         });

@@ -330,14 +330,9 @@ impl LayerNorm {
 pub fn geglu(projection: Tensor<3>) -> Tensor<3> {
     let [n, t, two_inner] = projection.dims();
     let inner = two_inner / 2;
-    if projection.dtype() == DType::F32
-        && !projection.is_autodiff()
-        && on_cpu_backend(&projection.device())
-        && inner > 0
-    {
+    if inner > 0 && cpu_inference_f32(&projection) {
         let device = projection.device();
-        let values = projection.into_data().try_into_vec::<f32>().expect("f32 values (checked above)");
-        let out = crate::cpu_geglu::geglu(&values, inner);
+        let out = crate::cpu_geglu::geglu(&cpu_values(projection), inner);
         return Tensor::from_data(TensorData::new(out, [n, t, inner]), &device);
     }
     if let Some(strategy) = flex_autodiff::geglu_applies(&projection) {
@@ -430,10 +425,22 @@ fn burn_attention(
     o.swap_dims(1, 2).reshape([b, tq, width])
 }
 
-/// Whether [`cpu_kernel_attention`] takes the call: the tensors live on a CPU backend, hold
-/// f32 and carry no autodiff graph (otherwise Burn's op runs).
+/// Whether [`cpu_kernel_attention`] takes the call: every tensor is one the crate's CPU
+/// inference kernels take ([`cpu_inference_f32`]; otherwise Burn's op runs).
 fn cpu_kernel_applies(q: &Tensor<3>, k: &Tensor<3>, v: &Tensor<3>) -> bool {
-    [q, k, v].iter().all(|t| t.dtype() == DType::F32) && !q.is_autodiff() && on_cpu_backend(&q.device())
+    cpu_inference_f32(q) && cpu_inference_f32(k) && cpu_inference_f32(v)
+}
+
+/// Whether the crate's CPU inference kernels (attention, GEGLU) may take `t`: f32 values on a
+/// CPU backend, with no autodiff graph to keep.
+fn cpu_inference_f32<const D: usize>(t: &Tensor<D>) -> bool {
+    t.dtype() == DType::F32 && !t.is_autodiff() && on_cpu_backend(&t.device())
+}
+
+/// The values of a tensor [`cpu_inference_f32`] accepted. Taken by value: a tensor that holds
+/// its values alone (the output of a projection) on flex gives them up without a copy.
+fn cpu_values<const D: usize>(t: Tensor<D>) -> Vec<f32> {
+    t.into_data().try_into_vec::<f32>().expect("f32 values (checked by cpu_inference_f32)")
 }
 
 /// The attention through [`crate::cpu_attention`]. The tensors are taken by value: the
@@ -444,8 +451,6 @@ fn cpu_kernel_attention(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usize) 
     let [batch, queries, width] = q.dims();
     let keys = k.dims()[1];
     let shape = crate::cpu_attention::AttentionShape { batch, queries, keys, heads, head_dim: width / heads };
-    let values =
-        |t: Tensor<3>| t.into_data().try_into_vec::<f32>().expect("f32 values (checked by cpu_kernel_applies)");
-    let out = crate::cpu_attention::attention(&values(q), &values(k), &values(v), shape);
+    let out = crate::cpu_attention::attention(&cpu_values(q), &cpu_values(k), &cpu_values(v), shape);
     Tensor::from_data(TensorData::new(out, [batch, queries, width]), &device)
 }
