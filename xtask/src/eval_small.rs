@@ -177,7 +177,8 @@ pub(crate) fn run(
     };
     let size = pipeline.image_size() as u32;
     std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
-    let picks = [TRAIN_MESHES[0], TRAIN_MESHES[3], TRAIN_MESHES[6], TRAIN_MESHES[5], HELD_OUT_MESH];
+    // Every training object, then the held-out one.
+    let picks = TRAIN_MESHES.iter().copied().chain([HELD_OUT_MESH]);
     let mut rows = Vec::new();
     let mut records = Vec::new();
     for mesh_path in picks {
