@@ -53,7 +53,7 @@
 //!   vertex and index counts of the file's accessors (and the given counts), uvs on every
 //!   mesh, and a base-colour texture wherever the file has one. Node has no image decoder,
 //!   so texture images are checked for being present, not decoded.
-//! - `cargo xtask train-small [--out DIR] [--quick] [--resume]`, `cargo xtask eval-small [--model DIR]`,
+//! - `cargo xtask train-small [--out DIR] [--quick] [--resume] [--phase-steps N,N,N,N,N,N]`, `cargo xtask eval-small [--model DIR]`,
 //!   `cargo xtask ship-small [--model DIR]`: the small model's recipe, its scores
 //!   (`docs/img/small_model.png`) and its f16 copy in `assets/model-small`
 //!   (`docs/training.md`); `cargo xtask tune-decoder --data DIR --out DIR [--model DIR]
@@ -114,6 +114,11 @@ enum Task {
         /// uninterrupted run's).
         #[arg(long)]
         resume: bool,
+        /// Steps of the six UNet phases (stages 1, 2, 3, joint, joint2, cool-down), comma
+        /// separated, instead of the recipe's; to try a shorter schedule. Recorded in
+        /// `recipe.json`.
+        #[arg(long, value_delimiter = ',')]
+        phase_steps: Option<Vec<usize>>,
     },
     /// Fine-tune the VAE decoder of a small model (encoder frozen, so its UNet keeps
     /// working) on a training set's views on white (docs/training.md, "The decoder").
@@ -765,7 +770,9 @@ fn main() -> ExitCode {
         Task::ValidateGlb { files } => validate_glb(&files),
         Task::LoadGlb { files, vertices, triangles } => load_glb(&files, vertices, triangles),
         Task::Fixtures { which } => fixtures(&which),
-        Task::TrainSmall { out, quick, resume } => train_small::run(&out, quick, resume),
+        Task::TrainSmall { out, quick, resume, phase_steps } => {
+            train_small::run(&out, quick, resume, phase_steps.as_deref())
+        }
         Task::EvalSmall { model, out, steps, sampler, guidance, eta, independent_noise, sheet, data } => {
             let sampling = eval_small::Sampling { sampler, steps, guidance, eta, independent_noise };
             eval_small::run(&model, &out, &sampling, &sheet, data.as_deref())

@@ -33,6 +33,15 @@ pub(crate) const TRAIN_MESHES: &[&str] = &[
 /// The held-out mesh.
 pub(crate) const HELD_OUT_MESH: &str = "assets/torus.obj";
 
+/// The folder of a run's tuned VAE (written once its decoder's passes are complete).
+const DECODER_DIR: &str = "decoder";
+
+/// The decoder's fine-tune: loaded from an earlier run, or training on its own thread.
+enum DecoderTune {
+    Done(Box<Vae>),
+    Running(std::thread::JoinHandle<Result<Vae, String>>),
+}
+
 /// One phase of the UNet's training: its folder, the stage (the batch layout and, unless
 /// `train_all`, the trainable set), whether every sample is composited on white, the seed of
 /// its draws and the decay of its weights' moving average (`None`: no EMA).
@@ -187,9 +196,16 @@ fn checkpoint_step(stage_dir: &Path) -> Option<usize> {
 /// set and the VAE are reused, a stage whose checkpoint reached its step count is loaded, one
 /// that stopped short resumes from its checkpoint (exactly, see `run_training`), and once a
 /// stage has trained, the stages after it start afresh. The result is the uninterrupted
-/// run's.
-pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
-    let schedule = if quick { Schedule::quick() } else { Schedule::full() };
+/// run's. `phase_steps` replaces the schedule's step counts of the six UNet phases.
+pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[usize]>) -> Result<(), String> {
+    let mut schedule = if quick { Schedule::quick() } else { Schedule::full() };
+    if let Some(steps) = phase_steps {
+        schedule.stage_steps = steps
+            .try_into()
+            .ok()
+            .filter(|s: &[usize; 6]| s.iter().all(|&n| n > 0))
+            .ok_or_else(|| format!("--phase-steps: six step counts of at least 1 (found {steps:?})"))?;
+    }
     let root = crate::workspace_root();
     let started = Instant::now();
     let device = wonder3d::diffusion::default_device();
@@ -235,12 +251,59 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
         fresh_model(&set, &schedule, scheduler, &device, started)?
     };
 
-    // 4. The three stages, the joint phases and the cool-down.
+    // 4. The decoder, sharpened on the latents of the frozen encoder, in two passes. It
+    // depends on the VAE alone, not on the UNet, so it trains on a thread of its own beside
+    // the UNet's phases: the two share the cores, and each fills the other's serial gaps
+    // (docs/training.md). Its result is written to `decoder/` once complete.
+    let decoder_dir = out.join(DECODER_DIR);
+    if !resume && decoder_dir.exists() {
+        // An earlier run's decoder belongs to that run's VAE.
+        std::fs::remove_dir_all(&decoder_dir).map_err(|e| format!("{}: {e}", decoder_dir.display()))?;
+    }
+    let decoder = if resume && decoder_dir.join("config.json").is_file() {
+        eprintln!(
+            "[{:6.0}s] decoder: tuned earlier, loaded from {}",
+            started.elapsed().as_secs_f64(),
+            decoder_dir.display()
+        );
+        DecoderTune::Done(Box::new(Vae::from_dir(&decoder_dir, &device).map_err(err)?))
+    } else {
+        let passes: Vec<(usize, f64)> = schedule.decoder_steps.into_iter().zip(schedule.decoder_lr).collect();
+        let (vae, set) = (pipeline.vae().clone(), set.clone());
+        let dir = decoder_dir.clone();
+        DecoderTune::Running(
+            std::thread::Builder::new()
+                .name("decoder".into())
+                .spawn(move || {
+                    let t = Instant::now();
+                    let vae = tune_decoder(vae, &set, &passes)?;
+                    wonder3d::core::io::write_dir_atomic(&dir, |staging| {
+                        vae.save(staging).map_err(|e| wonder3d::core::Error::invalid("decoder", e.to_string()))
+                    })
+                    .map_err(err)?;
+                    eprintln!(
+                        "[{:6.0}s] decoder tuned in {:.0} s",
+                        started.elapsed().as_secs_f64(),
+                        t.elapsed().as_secs_f64()
+                    );
+                    Ok(vae)
+                })
+                .map_err(err)?,
+        )
+    };
+
+    // 5. The three stages, the joint phases and the cool-down.
     for (i, phase) in PHASES.iter().enumerate() {
         let stage = phase.stage;
         let steps = schedule.stage_steps[i];
         let stage_dir = out.join(phase.dir);
         let reached = if retrain { None } else { checkpoint_step(&stage_dir) };
+        if let Some(s) = reached.filter(|&s| s > steps) {
+            return Err(format!(
+                "{}: its checkpoint reached step {s}, beyond this schedule's {steps} (resume with the same schedule, or use a new --out)",
+                stage_dir.display()
+            ));
+        }
         if reached.is_some_and(|s| s >= steps) {
             eprintln!(
                 "[{:6.0}s] {}: checkpoint at its {steps} steps, loaded",
@@ -302,11 +365,13 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool) -> Result<(), String> {
         .map_err(err)?;
         eprintln!("[{:6.0}s] {} done", started.elapsed().as_secs_f64(), phase.dir);
     }
-    // 5. The decoder, sharpened on the latents of the frozen encoder, in two passes.
-    let passes: Vec<(usize, f64)> = schedule.decoder_steps.into_iter().zip(schedule.decoder_lr).collect();
-    let t = Instant::now();
-    pipeline = tune_decoder(pipeline, &set, &passes)?;
-    eprintln!("[{:6.0}s] decoder tuned in {:.0} s", started.elapsed().as_secs_f64(), t.elapsed().as_secs_f64());
+    // 6. The trained UNet with the tuned decoder.
+    let tuned = match decoder {
+        DecoderTune::Done(vae) => *vae,
+        DecoderTune::Running(handle) => handle.join().map_err(|_| "the decoder's thread panicked".to_string())??,
+    };
+    let (unet, _, clip, scheduler) = pipeline.into_parts();
+    pipeline = MultiViewPipeline::new(unet, tuned, clip, scheduler).map_err(err)?;
     let model = out.join("model");
     pipeline.save(&model).map_err(err)?;
     let wall = started.elapsed().as_secs_f64();
@@ -382,16 +447,12 @@ fn fresh_model(
     MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)
 }
 
-/// Fine-tunes the decoder of `pipeline`'s VAE on the normal and colour views of `set` on
-/// white (what inference decodes), the encoder frozen: the latent space the UNet was trained
-/// in stays exactly as it was, and the decoder learns to draw it more sharply
-/// (docs/training.md, "The decoder"). One pass per `(steps, learning rate)` of `passes`, each
-/// with fresh optimizer moments; the set's images are read once for all of them.
-pub(crate) fn tune_decoder(
-    pipeline: MultiViewPipeline,
-    set: &TrainingSet,
-    passes: &[(usize, f64)],
-) -> Result<MultiViewPipeline, String> {
+/// Fine-tunes the decoder of `vae` on the normal and colour views of `set` on white (what
+/// inference decodes), the encoder frozen: the latent space the UNet was trained in stays
+/// exactly as it was, and the decoder learns to draw it more sharply (docs/training.md, "The
+/// decoder"). One pass per `(steps, learning rate)` of `passes`, each with fresh optimizer
+/// moments; the set's images are read once for all of them.
+pub(crate) fn tune_decoder(mut vae: Vae, set: &TrainingSet, passes: &[(usize, f64)]) -> Result<Vae, String> {
     let set = set.clone().with_background(Some(Background::White));
     let mut images = Vec::new();
     for i in 0..set.len() {
@@ -399,7 +460,6 @@ pub(crate) fn tune_decoder(
         images.extend(normal);
         images.extend(colour);
     }
-    let (unet, mut vae, clip, scheduler) = pipeline.into_parts();
     for &(steps, learning_rate) in passes {
         let options = VaeTrainOptions::default()
             .with_steps(steps)
@@ -423,7 +483,7 @@ pub(crate) fn tune_decoder(
         })
         .map_err(err)?;
     }
-    MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)
+    Ok(vae)
 }
 
 /// `cargo xtask tune-decoder`: [`tune_decoder`] from the model in `model` on the set in
@@ -444,8 +504,9 @@ pub(crate) fn tune_decoder_command(model: &Path, data: &Path, out: &Path, steps:
         ));
     }
     let started = Instant::now();
-    let pipeline = tune_decoder(pipeline, &set, &[(steps, lr)])?;
-    pipeline.save(out).map_err(err)?;
+    let (unet, vae, clip, scheduler) = pipeline.into_parts();
+    let vae = tune_decoder(vae, &set, &[(steps, lr)])?;
+    MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)?.save(out).map_err(err)?;
     eprintln!("[{:6.0}s] model with the tuned decoder written to {}", started.elapsed().as_secs_f64(), out.display());
     Ok(())
 }

@@ -247,8 +247,15 @@ fn scatter_columns(d_cols: &[f32], dx_n: &mut [f32], shape: ConvShape) {
             let Some(iy) = tap_source(oy, ky, h, shape) else { continue };
             let line = &mut plane[iy * w..(iy + 1) * w];
             let values = &out_row[ox_range.clone()];
-            for (x, &v) in line[ix0..].iter_mut().step_by(shape.stride).zip(values) {
-                *x += v;
+            if shape.stride == 1 {
+                // Contiguous on both sides: vectorised (a `step_by(1)` iterator is not).
+                for (x, &v) in line[ix0..ix0 + values.len()].iter_mut().zip(values) {
+                    *x += v;
+                }
+            } else {
+                for (x, &v) in line[ix0..].iter_mut().step_by(shape.stride).zip(values) {
+                    *x += v;
+                }
             }
         }
     }
