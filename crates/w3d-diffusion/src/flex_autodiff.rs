@@ -23,7 +23,7 @@ use burn::backend::autodiff::NodeId;
 use burn::backend::autodiff::checkpoint::base::Checkpointer;
 use burn::backend::autodiff::checkpoint::strategy::{BalancedCheckpointing, CheckpointStrategy, NoCheckpointing};
 use burn::backend::autodiff::grads::Gradients;
-use burn::backend::autodiff::ops::{Backward, Ops, OpsKind};
+use burn::backend::autodiff::ops::{Backward, NodeGuard, Ops, OpsKind};
 use burn::backend::flex::FlexTensor;
 use burn::backend::{Autodiff, Flex};
 use std::sync::Arc;
@@ -233,14 +233,9 @@ fn fused_attention<C: FlexAutodiff>(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, he
     let [qp, kp, vp] = [q.primitive(), k.primitive(), v.primitive()].map(|t| contiguous(t.clone()));
     let (out, lse) = attention_with_lse(f32s(&qp), f32s(&kp), f32s(&vp), shape);
     let out = FlexTensor::from_data(TensorData::new(out, [batch, queries, width]));
-    let result = match FusedAttention.prepare::<C>([q.node(), k.node(), v.node()]).compute_bound().stateful() {
-        OpsKind::Tracked(prep) => {
-            let state = AttentionState { q: qp, k: kp, v: vp, out: out.clone(), lse: Arc::new(lse), shape };
-            prep.finish(state, out)
-        }
-        OpsKind::UnTracked(prep) => prep.finish(out),
-    };
-    C::from_primitive(result)
+    let kept = out.clone();
+    let state = move || AttentionState { q: qp, k: kp, v: vp, out: kept, lse: Arc::new(lse), shape };
+    C::from_primitive(record::<C, _, 3>(FusedAttention, [q.node(), k.node(), v.node()], state, out))
 }
 
 /// The convolution's backward record: the input and weight (shared, not copied) and the shape.
@@ -283,16 +278,8 @@ fn fused_conv2d<C: FlexAutodiff>(
     let out = FlexTensor::from_data(TensorData::new(out, [shape.batch, shape.c_out, ho, wo]));
     let state = || ConvState { x: xp.clone(), weight: wp.clone(), shape };
     let result = match bias {
-        Some(b) => {
-            match FusedConv2d::<3>.prepare::<C>([x.node(), weight.node(), b.node()]).compute_bound().stateful() {
-                OpsKind::Tracked(prep) => prep.finish(state(), out),
-                OpsKind::UnTracked(prep) => prep.finish(out),
-            }
-        }
-        None => match FusedConv2d::<2>.prepare::<C>([x.node(), weight.node()]).compute_bound().stateful() {
-            OpsKind::Tracked(prep) => prep.finish(state(), out),
-            OpsKind::UnTracked(prep) => prep.finish(out),
-        },
+        Some(b) => record::<C, _, 3>(FusedConv2d::<3>, [x.node(), weight.node(), b.node()], state, out),
+        None => record::<C, _, 2>(FusedConv2d::<2>, [x.node(), weight.node()], state, out),
     };
     C::from_primitive(result)
 }
@@ -342,14 +329,8 @@ fn fused_group_norm<C: FlexAutodiff>(
     let [xp, wp, bp] = [x.primitive(), weight.primitive(), bias.primitive()].map(|t| contiguous(t.clone()));
     let (out, stats) = group_norm(f32s(&xp), f32s(&wp), f32s(&bp), shape, eps, silu);
     let out = FlexTensor::from_data(TensorData::new(out, dims));
-    let result = match FusedGroupNorm.prepare::<C>([x.node(), weight.node(), bias.node()]).compute_bound().stateful() {
-        OpsKind::Tracked(prep) => {
-            let state = GroupNormState { x: xp, weight: wp, bias: bp, stats: Arc::new(stats), shape, silu };
-            prep.finish(state, out)
-        }
-        OpsKind::UnTracked(prep) => prep.finish(out),
-    };
-    C::from_primitive(result)
+    let state = || GroupNormState { x: xp, weight: wp, bias: bp, stats: Arc::new(stats), shape, silu };
+    C::from_primitive(record::<C, _, 3>(FusedGroupNorm, [x.node(), weight.node(), bias.node()], state, out))
 }
 
 /// The GEGLU gate's backward record: the projection (shared, not copied).
@@ -380,11 +361,23 @@ fn fused_geglu<C: FlexAutodiff>(projection: Tensor<3>) -> Tensor<3> {
     let values = contiguous(projection.primitive().clone());
     let out = geglu(f32s(&values), two_inner / 2);
     let out = FlexTensor::from_data(TensorData::new(out, [n, t, two_inner / 2]));
-    let result = match FusedGeglu.prepare::<C>([projection.node()]).compute_bound().stateful() {
-        OpsKind::Tracked(prep) => prep.finish(GegluState { projection: values }, out),
+    let state = || GegluState { projection: values };
+    C::from_primitive(record::<C, _, 1>(FusedGeglu, [projection.node()], state, out))
+}
+
+/// `out` as the result of the node `op` on `parents`: recorded with its backward state
+/// (`state` is only called then) when a parent is tracked, a plain untracked result otherwise.
+/// The one way every node here joins the graph.
+fn record<C: FlexAutodiff, O: Backward<Flex, N>, const N: usize>(
+    op: O,
+    parents: [NodeGuard; N],
+    state: impl FnOnce() -> O::State,
+    out: FlexTensor,
+) -> FlexAutodiffTensor {
+    match op.prepare::<C>(parents).compute_bound().stateful() {
+        OpsKind::Tracked(prep) => prep.finish(state(), out),
         OpsKind::UnTracked(prep) => prep.finish(out),
-    };
-    C::from_primitive(result)
+    }
 }
 
 /// Registers each computed gradient (`values`, shaped as given) for its parent node, where the
