@@ -2,8 +2,9 @@
 //! (`docs/training.md`; `cargo xtask ship-small` puts a trained model there in f16): a training set rendered from the CC0 / CC BY meshes, a small VAE
 //! trained on its images, a frozen random CLIP image encoder, the multi-view UNet trained
 //! through Wonder3D++'s three stages, two joint phases on white backgrounds and a cool-down
-//! (the learning rate falling to 0), each starting from the previous one, and last the VAE's
-//! decoder fine-tuned in two passes with its encoder frozen.
+//! (the learning rate falling to 0), each starting from the previous one, and, on a thread of
+//! its own beside the UNet's phases, the VAE's decoder fine-tuned in two passes with its
+//! encoder frozen.
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
