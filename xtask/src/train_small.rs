@@ -278,10 +278,7 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[u
                 .spawn(move || {
                     let t = Instant::now();
                     let vae = tune_decoder(vae, &set, &passes)?;
-                    wonder3d::core::io::write_dir_atomic(&dir, |staging| {
-                        vae.save(staging).map_err(|e| wonder3d::core::Error::invalid("decoder", e.to_string()))
-                    })
-                    .map_err(err)?;
+                    wonder3d::core::io::write_dir_atomic(&dir, |staging| vae.save(staging)).map_err(err)?;
                     eprintln!(
                         "[{:6.0}s] decoder tuned in {:.0} s",
                         started.elapsed().as_secs_f64(),
@@ -305,7 +302,7 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[u
                 stage_dir.display()
             ));
         }
-        if reached.is_some_and(|s| s >= steps) {
+        if reached == Some(steps) {
             eprintln!(
                 "[{:6.0}s] {}: checkpoint at its {steps} steps, loaded",
                 started.elapsed().as_secs_f64(),
