@@ -43,6 +43,27 @@ enum DecoderTune {
     Running(std::thread::JoinHandle<Result<Vae, String>>),
 }
 
+impl DecoderTune {
+    /// Waits for the thread (if any) and returns the tuned VAE, or the thread's error.
+    fn join(self) -> Result<Vae, String> {
+        match self {
+            DecoderTune::Done(vae) => Ok(*vae),
+            DecoderTune::Running(handle) => handle.join().map_err(|_| "the decoder's thread panicked".to_string())?,
+        }
+    }
+
+    /// Joins the thread if it has already finished, so that its failure stops the run at the
+    /// next phase boundary instead of after every UNet phase (hours later).
+    fn poll(self) -> Result<Self, String> {
+        match self {
+            DecoderTune::Running(handle) if handle.is_finished() => {
+                Ok(DecoderTune::Done(Box::new(DecoderTune::Running(handle).join()?)))
+            }
+            other => Ok(other),
+        }
+    }
+}
+
 /// One phase of the UNet's training: its folder, the stage (the batch layout and, unless
 /// `train_all`, the trainable set), whether every sample is composited on white, the seed of
 /// its draws and the decay of its weights' moving average (`None`: no EMA).
@@ -257,11 +278,13 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[u
     // the UNet's phases: the two share the cores, and each fills the other's serial gaps
     // (docs/training.md). Its result is written to `decoder/` once complete.
     let decoder_dir = out.join(DECODER_DIR);
+    // Checked now rather than when the tune, an hour later, writes there.
+    wonder3d::core::io::replaceable_folder(&decoder_dir).map_err(err)?;
     if !resume && decoder_dir.exists() {
         // An earlier run's decoder belongs to that run's VAE.
         std::fs::remove_dir_all(&decoder_dir).map_err(|e| format!("{}: {e}", decoder_dir.display()))?;
     }
-    let decoder = if resume && decoder_dir.join("config.json").is_file() {
+    let mut decoder = if resume && decoder_dir.join("config.json").is_file() {
         eprintln!(
             "[{:6.0}s] decoder: tuned earlier, loaded from {}",
             started.elapsed().as_secs_f64(),
@@ -292,6 +315,7 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[u
 
     // 5. The three stages, the joint phases and the cool-down.
     for (i, phase) in PHASES.iter().enumerate() {
+        decoder = decoder.poll()?;
         let stage = phase.stage;
         let steps = schedule.stage_steps[i];
         let stage_dir = out.join(phase.dir);
@@ -364,10 +388,7 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[u
         eprintln!("[{:6.0}s] {} done", started.elapsed().as_secs_f64(), phase.dir);
     }
     // 6. The trained UNet with the tuned decoder.
-    let tuned = match decoder {
-        DecoderTune::Done(vae) => *vae,
-        DecoderTune::Running(handle) => handle.join().map_err(|_| "the decoder's thread panicked".to_string())??,
-    };
+    let tuned = decoder.join()?;
     let (unet, _, clip, scheduler) = pipeline.into_parts();
     pipeline = MultiViewPipeline::new(unet, tuned, clip, scheduler).map_err(err)?;
     let model = out.join("model");

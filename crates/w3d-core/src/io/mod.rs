@@ -121,9 +121,12 @@ pub fn replaceable_folder(dir: &Path) -> Result<bool> {
 /// beside `dir` (`.<name>.partial-<pid>-<n>`), which then replaces `dir` as a whole (an
 /// existing `dir` is moved aside first and deleted only once the new one is in place). On
 /// any error the staging folder is removed and `dir` is left as it was, so a reader never
-/// sees a folder mixing two writes. The caller decides whether `dir` may be replaced.
+/// sees a folder mixing two writes. The caller decides whether `dir` may be replaced; a
+/// file at `dir` (or a missing parent) is refused before `fill` runs, see
+/// [`replaceable_folder`].
 pub fn write_dir_atomic(dir: impl AsRef<Path>, fill: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
     let dir = dir.as_ref();
+    replaceable_folder(dir)?;
     let staging = sibling(dir, "partial")?;
     let written = std::fs::create_dir(&staging).map_err(|e| Error::io(&staging, e)).and_then(|()| fill(&staging));
     if let Err(e) = written {

@@ -230,3 +230,42 @@ fn oracle_like_views(rig: &ViewRig, size: u32) -> Vec<w3d_core::ViewImages> {
         })
         .collect()
 }
+
+#[test]
+fn write_dir_atomic_replaces_a_folder_whole_and_refuses_a_file() {
+    use w3d_core::io::write_dir_atomic;
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("out");
+    std::fs::create_dir(&dir).unwrap();
+    std::fs::write(dir.join("stale.txt"), b"earlier run").unwrap();
+    // A failing fill leaves the earlier folder as it was and no staging folder beside it.
+    let failed = write_dir_atomic(&dir, |staging| {
+        std::fs::write(staging.join("half.txt"), b"half").unwrap();
+        Err(w3d_core::Error::invalid("fill", "a failure for the test"))
+    });
+    assert!(failed.is_err());
+    assert_eq!(std::fs::read(dir.join("stale.txt")).unwrap(), b"earlier run");
+    assert_eq!(std::fs::read_dir(root.path()).unwrap().count(), 1, "only `out` is left");
+    // A successful one replaces it as a whole.
+    write_dir_atomic(&dir, |staging| {
+        std::fs::write(staging.join("new.txt"), b"new").map_err(|e| w3d_core::Error::io(staging, e))
+    })
+    .unwrap();
+    assert!(!dir.join("stale.txt").exists());
+    assert_eq!(std::fs::read(dir.join("new.txt")).unwrap(), b"new");
+    assert_eq!(std::fs::read_dir(root.path()).unwrap().count(), 1, "no backup folder is left");
+    // A file at the path is refused before the fill runs, and left untouched.
+    let file = root.path().join("a_file");
+    std::fs::write(&file, b"keep me").unwrap();
+    let mut ran = false;
+    let err = write_dir_atomic(&file, |_| {
+        ran = true;
+        Ok(())
+    })
+    .unwrap_err()
+    .to_string();
+    assert!(!ran, "the fill must not run");
+    assert!(err.contains("a_file") && err.contains("file"), "{err}");
+    assert_eq!(std::fs::read(&file).unwrap(), b"keep me");
+    assert_eq!(std::fs::read_dir(root.path()).unwrap().count(), 2);
+}
