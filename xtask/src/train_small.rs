@@ -37,6 +37,48 @@ pub(crate) const HELD_OUT_MESH: &str = "assets/torus.obj";
 /// The folder of a run's tuned VAE (written once its decoder's passes are complete).
 const DECODER_DIR: &str = "decoder";
 
+/// The file in which a run keeps its training time up to the last work a `--resume` keeps
+/// (a checkpoint, a finished phase), summed over the processes that `--resume` joins: the
+/// wall time of the uninterrupted run plus the resumes' reloading.
+const CLOCK_FILE: &str = "clock.json";
+
+/// A run's training time across processes (see [`CLOCK_FILE`]).
+struct RunClock {
+    /// Seconds of the earlier processes (`None`: a resumed run without a clock file).
+    earlier: Option<f64>,
+    started: Instant,
+    path: PathBuf,
+}
+
+impl RunClock {
+    /// Starts this process's clock; a fresh run discards an earlier run's file.
+    fn start(out: &Path, resume: bool) -> Result<Self, String> {
+        let path = out.join(CLOCK_FILE);
+        let earlier = if resume {
+            let read = std::fs::read(&path).ok().and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok());
+            read.and_then(|json| json["seconds"].as_f64())
+        } else {
+            match std::fs::remove_file(&path) {
+                Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(format!("{}: {e}", path.display())),
+                _ => Some(0.0),
+            }
+        };
+        Ok(Self { earlier, started: Instant::now(), path })
+    }
+
+    /// The run's seconds so far, over all its processes (`None` if the earlier ones are unknown).
+    fn seconds(&self) -> Option<f64> {
+        self.earlier.map(|e| e + self.started.elapsed().as_secs_f64())
+    }
+
+    /// Records the time so far; called once work a resume keeps is on disk.
+    fn save(&self) -> Result<(), String> {
+        let Some(seconds) = self.seconds() else { return Ok(()) };
+        let bytes = serde_json::to_vec_pretty(&serde_json::json!({ "seconds": seconds })).map_err(err)?;
+        wonder3d::core::io::write_atomic_all(&[(&self.path, &bytes)]).map_err(err)
+    }
+}
+
 /// The decoder's fine-tune: loaded from an earlier run, or training on its own thread.
 enum DecoderTune {
     Done(Box<Vae>),
@@ -234,6 +276,7 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[u
     std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
     let stage1 = out.join("stage1").join(CHECKPOINT_DIR);
     let resume = resume && stage1.join("model_index.json").is_file();
+    let clock = RunClock::start(out, resume)?;
 
     // 1. The training set.
     let data = out.join("data");
@@ -371,20 +414,27 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[u
         }
         let t = Instant::now();
         let first = reached.unwrap_or(0);
-        pipeline = run_training(pipeline, &set, options, &run, &stage_dir, resume_stage, &mut |event| {
-            if let RunEvent::Step(log) = event
-                && (log.step % 50 == 0 || log.step == steps)
-            {
-                eprintln!(
-                    "  {} step {}/{steps}: loss {:.4} ({:.2} s/step)",
-                    phase.dir,
-                    log.step,
-                    log.loss,
-                    t.elapsed().as_secs_f64() / (log.step - first).max(1) as f64
-                );
+        let mut clock_error = None;
+        pipeline = run_training(pipeline, &set, options, &run, &stage_dir, resume_stage, &mut |event| match event {
+            RunEvent::Step(log) if log.step % 50 == 0 || log.step == steps => eprintln!(
+                "  {} step {}/{steps}: loss {:.4} ({:.2} s/step)",
+                phase.dir,
+                log.step,
+                log.loss,
+                t.elapsed().as_secs_f64() / (log.step - first).max(1) as f64
+            ),
+            RunEvent::Checkpoint { .. } => {
+                if let Err(e) = clock.save() {
+                    clock_error.get_or_insert(e);
+                }
             }
+            _ => {}
         })
         .map_err(err)?;
+        if let Some(e) = clock_error {
+            return Err(e);
+        }
+        clock.save()?;
         eprintln!("[{:6.0}s] {} done", started.elapsed().as_secs_f64(), phase.dir);
     }
     // 6. The trained UNet with the tuned decoder.
@@ -408,11 +458,18 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[u
         "meshes": TRAIN_MESHES, "held_out": HELD_OUT_MESH,
         "resumed": resume,
         "wall_seconds": wall,
+        "run_seconds": clock.seconds(),
         "threads": std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
     });
     std::fs::write(out.join("recipe.json"), serde_json::to_vec_pretty(&record).map_err(err)?)
         .map_err(|e| format!("{}: {e}", out.display()))?;
-    eprintln!("[{wall:6.0}s] model written to {}", model.display());
+    clock.save()?;
+    match clock.seconds() {
+        Some(run) if resume => {
+            eprintln!("[{wall:6.0}s] model written to {} ({run:.0} s over this run's processes)", model.display())
+        }
+        _ => eprintln!("[{wall:6.0}s] model written to {}", model.display()),
+    }
     Ok(())
 }
 
