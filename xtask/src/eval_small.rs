@@ -5,7 +5,8 @@
 //! truth inside the true masks (mean angular error), the generated masks with the true ones
 //! (IoU), and the mesh reconstructed from the generated views with the posed object
 //! (Chamfer distance, both normalised into the unit cube). Writes
-//! `target/eval-small/eval.json` and the contact sheet `docs/img/small_model.png`: per object,
+//! `target/eval-small/eval.json` and the contact sheet `target/eval-small/small_model.png`
+//! (`--sheet docs/img/small_model.png` for the committed one): per object,
 //! the input, the generated views and the reconstructed mesh's normals from two cameras,
 //! above the true views and the true mesh.
 
@@ -163,10 +164,15 @@ pub(crate) fn run(
     model: &Path,
     out: &Path,
     sampling: &Sampling,
-    sheet_path: &Path,
+    sheet_path: Option<&Path>,
     data: Option<&Path>,
 ) -> Result<(), String> {
     let root = crate::workspace_root();
+    let picture = sheet_path.map_or_else(|| out.join("small_model.png"), |p| root.join(p));
+    // The explicit sheet's folder is checked before minutes of generation, not after.
+    if let Some(parent) = sheet_path.and(picture.parent()).filter(|p| !p.is_dir()) {
+        return Err(format!("--sheet {}: its folder {} does not exist", picture.display(), parent.display()));
+    }
     let sampler: SamplerKind = sampling.sampler.parse().map_err(err)?;
     let steps = sampling.steps;
     let device = wonder3d::diffusion::default_device();
@@ -286,7 +292,6 @@ pub(crate) fn run(
         MESH_VIEWS[1],
     ];
     let sheet = contact_sheet(&labels, &rows).map_err(err)?;
-    let picture = root.join(sheet_path);
     sheet.write_png(&picture).map_err(err)?;
     let record = serde_json::json!({
         "model": model.display().to_string(), "objects": records, "condition_use_x0_mse": probe,

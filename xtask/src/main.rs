@@ -53,9 +53,9 @@
 //!   vertex and index counts of the file's accessors (and the given counts), uvs on every
 //!   mesh, and a base-colour texture wherever the file has one. Node has no image decoder,
 //!   so texture images are checked for being present, not decoded.
-//! - `cargo xtask train-small [--out DIR] [--quick] [--resume] [--phase-steps N,N,N,N,N,N]`, `cargo xtask eval-small [--model DIR]`,
+//! - `cargo xtask train-small [--out DIR] [--quick] [--resume] [--phase-steps N,N,N,N,N,N]`, `cargo xtask eval-small [--model DIR] [--sheet PNG]`,
 //!   `cargo xtask ship-small [--model DIR]`: the small model's recipe, its scores
-//!   (`docs/img/small_model.png`) and its f16 copy in `assets/model-small`
+//!   (`--sheet docs/img/small_model.png` for the committed picture) and its f16 copy in `assets/model-small`
 //!   (`docs/training.md`); `cargo xtask tune-decoder --data DIR --out DIR [--model DIR]
 //!   [--steps N] [--lr LR]`: a small model's VAE decoder fine-tuned on its frozen encoder's
 //!   latents.
@@ -147,7 +147,7 @@ enum Task {
         model: PathBuf,
     },
     /// Score the small model: generated views and reconstructed meshes of training objects
-    /// and the held-out one against the truth; docs/img/small_model.png.
+    /// and the held-out one against the truth, with a contact sheet of them.
     EvalSmall {
         /// Model directory.
         #[arg(long, default_value = "target/train-small/model")]
@@ -172,9 +172,11 @@ enum Task {
         /// view shared by both domains (the authors' inference).
         #[arg(long)]
         independent_noise: bool,
-        /// Contact sheet to write.
-        #[arg(long, default_value = "docs/img/small_model.png")]
-        sheet: PathBuf,
+        /// Contact sheet to write, relative to the workspace root (default: `small_model.png`
+        /// in the output folder; the committed picture is `--sheet docs/img/small_model.png`,
+        /// written only when asked so that a sweep of sampling settings cannot replace it).
+        #[arg(long)]
+        sheet: Option<PathBuf>,
         /// The training set the model was trained on: also measure how much its denoising
         /// uses the condition (x₀ error with its own, another's and no condition).
         #[arg(long)]
@@ -775,7 +777,7 @@ fn main() -> ExitCode {
         }
         Task::EvalSmall { model, out, steps, sampler, guidance, eta, independent_noise, sheet, data } => {
             let sampling = eval_small::Sampling { sampler, steps, guidance, eta, independent_noise };
-            eval_small::run(&model, &out, &sampling, &sheet, data.as_deref())
+            eval_small::run(&model, &out, &sampling, sheet.as_deref(), data.as_deref())
         }
         Task::ShipSmall { model } => train_small::ship(&model),
         Task::TuneDecoder { model, data, out, steps, lr } => {
