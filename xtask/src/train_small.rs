@@ -51,8 +51,9 @@ struct RunClock {
 }
 
 impl RunClock {
-    /// Starts this process's clock; a fresh run discards an earlier run's file.
-    fn start(out: &Path, resume: bool) -> Result<Self, String> {
+    /// This process's clock, counting from `started` (the process's start); a fresh run
+    /// discards an earlier run's file.
+    fn start(out: &Path, resume: bool, started: Instant) -> Result<Self, String> {
         let path = out.join(CLOCK_FILE);
         let earlier = if resume {
             let read = std::fs::read(&path).ok().and_then(|b| serde_json::from_slice::<serde_json::Value>(&b).ok());
@@ -63,7 +64,7 @@ impl RunClock {
                 _ => Some(0.0),
             }
         };
-        Ok(Self { earlier, started: Instant::now(), path })
+        Ok(Self { earlier, started, path })
     }
 
     /// The run's seconds so far, over all its processes (`None` if the earlier ones are unknown).
@@ -71,11 +72,12 @@ impl RunClock {
         self.earlier.map(|e| e + self.started.elapsed().as_secs_f64())
     }
 
-    /// Records the time so far; called once work a resume keeps is on disk.
-    fn save(&self) -> Result<(), String> {
-        let Some(seconds) = self.seconds() else { return Ok(()) };
+    /// Records the time so far, and returns it; called once work a resume keeps is on disk.
+    fn save(&self) -> Result<Option<f64>, String> {
+        let Some(seconds) = self.seconds() else { return Ok(None) };
         let bytes = serde_json::to_vec_pretty(&serde_json::json!({ "seconds": seconds })).map_err(err)?;
-        wonder3d::core::io::write_atomic_all(&[(&self.path, &bytes)]).map_err(err)
+        wonder3d::core::io::write_atomic_all(&[(&self.path, &bytes)]).map_err(err)?;
+        Ok(Some(seconds))
     }
 }
 
@@ -276,7 +278,7 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[u
     std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
     let stage1 = out.join("stage1").join(CHECKPOINT_DIR);
     let resume = resume && stage1.join("model_index.json").is_file();
-    let clock = RunClock::start(out, resume)?;
+    let clock = RunClock::start(out, resume, started)?;
 
     // 1. The training set.
     let data = out.join("data");
@@ -444,6 +446,8 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[u
     let model = out.join("model");
     pipeline.save(&model).map_err(err)?;
     let wall = started.elapsed().as_secs_f64();
+    // Saved once, so that `clock.json` and `recipe.json` hold the same time.
+    let run_seconds = clock.save()?;
     let record = serde_json::json!({
         "schedule": {
             "samples_per_mesh": schedule.samples, "size": schedule.size, "vae_steps": schedule.vae_steps,
@@ -458,13 +462,12 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[u
         "meshes": TRAIN_MESHES, "held_out": HELD_OUT_MESH,
         "resumed": resume,
         "wall_seconds": wall,
-        "run_seconds": clock.seconds(),
+        "run_seconds": run_seconds,
         "threads": std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1),
     });
     std::fs::write(out.join("recipe.json"), serde_json::to_vec_pretty(&record).map_err(err)?)
         .map_err(|e| format!("{}: {e}", out.display()))?;
-    clock.save()?;
-    match clock.seconds() {
+    match run_seconds {
         Some(run) if resume => {
             eprintln!("[{wall:6.0}s] model written to {} ({run:.0} s over this run's processes)", model.display())
         }
