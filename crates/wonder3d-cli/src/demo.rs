@@ -79,8 +79,8 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     let r = &demo.report;
     if let Some(g) = &r.generated_views {
         println!(
-            "generated views against spot's: normal error {:.1}° inside the true mask, mask IoU {:.3}",
-            g.normal_angle_deg, g.mask_iou
+            "generated views against spot's: normal error {:.1}° inside the true mask ({:.1}° leaving out its one-pixel rim), mask IoU {:.3}",
+            g.normal_angle_deg, g.interior_normal_angle_deg, g.mask_iou
         );
     }
     println!(
