@@ -97,6 +97,7 @@ pub(crate) struct Sampling {
     pub guidance: f64,
     pub eta: f64,
     pub independent_noise: bool,
+    pub draws: usize,
 }
 
 /// The views of [`MESH_VIEWS`] in the rig's order, by index.
@@ -209,10 +210,20 @@ pub(crate) fn run(
             "persp" => CameraType::Perspective,
             _ => CameraType::Orthographic,
         };
-        let sample_options =
-            SampleOptions { sampler, steps, guidance: sampling.guidance, eta: sampling.eta, camera, seed: 42 };
+        let sample_options = SampleOptions {
+            sampler,
+            steps,
+            guidance: sampling.guidance,
+            eta: sampling.eta,
+            camera,
+            seed: 42,
+            draws: sampling.draws,
+        };
         let t = Instant::now();
         let generated = if sampling.independent_noise {
+            if sampling.draws != 1 {
+                return Err("--independent-noise draws once (leave out --draws)".into());
+            }
             let input = wonder3d::diffusion::prepare_input(&rgba, size).map_err(err)?;
             let cond = pipeline.condition(&input, &device).map_err(err)?;
             let [v, c, h, w] = pipeline.noise_shape();
@@ -260,7 +271,7 @@ pub(crate) fn run(
                 "interior_normal_angle_deg": ceiling.interior_normal_angle_deg,
             }, "chamfer": chamfer, "generate_seconds": generate_s,
             "steps": steps, "sampler": sampler.name(), "guidance": sampling.guidance, "eta": sampling.eta,
-            "independent_noise": sampling.independent_noise,
+            "independent_noise": sampling.independent_noise, "draws": sampling.draws,
         }));
         let input = wonder3d::diffusion::prepare_input(&rgba, size).map_err(err)?;
         let pictures = |set: &ViewSet| -> Result<Vec<Image>, String> {

@@ -172,6 +172,9 @@ enum Task {
         /// view shared by both domains (the authors' inference).
         #[arg(long)]
         independent_noise: bool,
+        /// Draws merged into their consensus (`SampleOptions::draws`; seeds 42, 43, …).
+        #[arg(long, default_value_t = 1)]
+        draws: usize,
         /// Contact sheet to write, relative to the workspace root (default: `small_model.png`
         /// in the output folder; the committed picture is `--sheet docs/img/small_model.png`,
         /// written only when asked so that a sweep of sampling settings cannot replace it).
@@ -775,8 +778,8 @@ fn main() -> ExitCode {
         Task::TrainSmall { out, quick, resume, phase_steps } => {
             train_small::run(&out, quick, resume, phase_steps.as_deref())
         }
-        Task::EvalSmall { model, out, steps, sampler, guidance, eta, independent_noise, sheet, data } => {
-            let sampling = eval_small::Sampling { sampler, steps, guidance, eta, independent_noise };
+        Task::EvalSmall { model, out, steps, sampler, guidance, eta, independent_noise, draws, sheet, data } => {
+            let sampling = eval_small::Sampling { sampler, steps, guidance, eta, independent_noise, draws };
             eval_small::run(&model, &out, &sampling, sheet.as_deref(), data.as_deref())
         }
         Task::ShipSmall { model } => train_small::ship(&model),

@@ -359,6 +359,82 @@ fn generated_views_become_a_view_set_in_the_rig_frame() {
     assert_eq!(loaded.views()[2].mask, set.views()[2].mask);
 }
 
+/// One 3×1 view set (every view alike): pixel 0 object with the normal `n` and colour `c`,
+/// pixel 1 object only when `middle`, pixel 2 background.
+fn one_row(n: [f32; 3], c: [f32; 3], middle: bool) -> GeneratedViews {
+    let enc = n.map(|v| (v + 1.0) / 2.0);
+    let mut normal = Image::filled(3, 1, 3, 1.0).unwrap();
+    let mut colour = Image::filled(3, 1, 3, 1.0).unwrap();
+    for x in 0..if middle { 2 } else { 1 } {
+        normal.pixel_mut(x, 0).copy_from_slice(&enc);
+        colour.pixel_mut(x, 0).copy_from_slice(&c);
+    }
+    GeneratedViews { camera: CameraType::Orthographic, normals: vec![normal; 6], colours: vec![colour; 6] }
+}
+
+#[test]
+fn the_consensus_of_draws_averages_normals_and_votes_on_the_mask() {
+    let s = std::f32::consts::FRAC_1_SQRT_2;
+    let draws = [
+        one_row([s, 0.0, s], [0.2, 0.4, 0.6], true),
+        one_row([-s, 0.0, s], [0.4, 0.4, 0.6], false),
+        one_row([0.0, 0.0, 1.0], [0.6, 0.4, 0.6], false),
+    ];
+    let merged = GeneratedViews::consensus(&draws).unwrap();
+    let view = merged.to_view_set().unwrap();
+    let v = &view.views()[4];
+    // Pixel 0: the normalised sum of the three unit normals is +z, the colour their mean.
+    let n = v.normal.pixel(0, 0);
+    assert!(n[0].abs() < 1e-5 && (n[2] - 1.0).abs() < 1e-5, "{n:?}");
+    let c = v.colour.as_ref().unwrap().pixel(0, 0);
+    assert!((c[0] - 0.4).abs() < 1e-6 && (c[2] - 0.6).abs() < 1e-6, "{c:?}");
+    // Pixel 1: one draw of three has the object there, so the consensus has not.
+    assert_eq!((v.mask.pixel(1, 0)[0], v.mask.pixel(2, 0)[0]), (0.0, 0.0));
+    assert_eq!(merged.colours[4].pixel(1, 0), &[1.0, 1.0, 1.0]);
+    // Two draws of four (at least half) keep it, with the colour of those two.
+    let four = [draws[0].clone(), draws[0].clone(), draws[1].clone(), draws[2].clone()];
+    let merged = GeneratedViews::consensus(&four).unwrap();
+    assert_eq!(merged.to_view_set().unwrap().views()[0].mask.pixel(1, 0)[0], 1.0);
+    assert!((merged.colours[0].pixel(1, 0)[0] - 0.2).abs() < 1e-6);
+    // One draw is its own consensus (up to the rounding of re-encoding its normals).
+    let (alone, own) = (draws[0].to_view_set().unwrap(), GeneratedViews::consensus(&draws[..1]).unwrap());
+    let own = own.to_view_set().unwrap();
+    for (a, b) in alone.views().iter().zip(own.views()) {
+        assert_eq!((&a.mask, &a.colour), (&b.mask, &b.colour));
+        assert!(max_abs_vec(a.normal.data(), b.normal.data()) < 1e-6);
+    }
+    // Nothing to merge, or draws that do not match, are refused.
+    assert!(GeneratedViews::consensus(&[]).is_err());
+    let mut other = draws[1].clone();
+    other.camera = CameraType::Perspective;
+    let err = GeneratedViews::consensus(&[draws[0].clone(), other]).unwrap_err().to_string();
+    assert!(err.contains("draw 1"), "{err}");
+    let mut small = draws[1].clone();
+    small.normals[3] = Image::filled(2, 1, 3, 1.0).unwrap();
+    assert!(GeneratedViews::consensus(&[draws[0].clone(), small]).is_err());
+}
+
+#[test]
+fn several_draws_are_the_consensus_of_consecutive_seeds() {
+    let device = w3d_diffusion::default_device();
+    let pipeline = MultiViewPipeline::from_dir(fixture("wonder3d_tiny"), &device).unwrap();
+    let rgba = common::disc_image(40);
+    let options = SampleOptions { steps: 2, seed: 7, ..SampleOptions::default() };
+    let mut calls = Vec::new();
+    let run = |options: &SampleOptions, calls: &mut Vec<(usize, usize)>| {
+        pipeline.generate(&rgba, options, &device, &mut |i, n| calls.push((i, n))).unwrap()
+    };
+    let three = run(&SampleOptions { draws: 3, ..options }, &mut calls);
+    // One progress bar over all the draws' steps.
+    assert_eq!(calls, (1..=6).map(|i| (i, 6)).collect::<Vec<_>>());
+    let singles: Vec<GeneratedViews> =
+        (7..10).map(|seed| run(&SampleOptions { seed, ..options }, &mut Vec::new())).collect();
+    assert_eq!(three, GeneratedViews::consensus(&singles).unwrap());
+    assert_ne!(singles[0], singles[1]);
+    let err = pipeline.generate(&rgba, &SampleOptions { draws: 0, ..options }, &device, &mut |_, _| {}).unwrap_err();
+    assert!(err.to_string().contains("draws"), "{err}");
+}
+
 /// Copies the tiny model directory into a temporary one.
 fn tiny_copy() -> tempfile::TempDir {
     let dir = tempfile::tempdir().unwrap();

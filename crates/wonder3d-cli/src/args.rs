@@ -206,6 +206,11 @@ pub fn steps(s: &str) -> Result<usize, String> {
     whole_in(s, 1, 1000, " steps")
 }
 
+/// Draws merged into one set of views: a whole number from 1 to 64.
+pub fn draws(s: &str) -> Result<usize, String> {
+    whole_in(s, 1, 64, " draws")
+}
+
 /// Classifier-free guidance scale: finite, 0 to 100 (1 = no unconditional branch).
 pub fn guidance(s: &str) -> Result<f64, String> {
     finite_in(s, 0.0, 100.0, "a guidance scale")

@@ -90,7 +90,7 @@ impl Generator {
         Ok(Generator { pipeline, device, options: SampleOptions::default(), prepare: PrepareOptions::default() })
     }
 
-    /// The same model with other sampling options (steps, guidance, eta, camera type, seed).
+    /// The same model with other sampling options (steps, guidance, eta, camera type, seed, draws).
     pub fn with_options(mut self, options: SampleOptions) -> Generator {
         self.options = options;
         self

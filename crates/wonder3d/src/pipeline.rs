@@ -142,8 +142,10 @@ pub struct GenerationReport {
     pub steps: usize,
     /// Classifier-free guidance scale.
     pub guidance: f64,
-    /// Sampling noise seed.
+    /// Sampling noise seed (of the first draw; the others follow it).
     pub seed: u64,
+    /// Draws merged into the views (`SampleOptions::draws`).
+    pub draws: usize,
     /// The rig of the generated views (`wonder3d-ortho` or `wonder3d-persp`).
     pub rig: String,
 }
@@ -472,6 +474,7 @@ impl Pipeline {
             steps: options.steps,
             guidance: options.guidance,
             seed: options.seed,
+            draws: options.draws,
             rig: generated.views.rig().name.clone(),
         };
         self.finish(generated.views, Some(generated.input), Some(generation), seconds, progress)
