@@ -97,21 +97,23 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     Ok(())
 }
 
-/// Draws of `demo --from-image` unless `--draws` says otherwise: their consensus takes 1–2°
-/// off the small model's normal error for 4× the generation (docs/training.md).
+/// Draws of `demo --from-image` with the small model unless `--draws` says otherwise: their
+/// consensus takes 1–2° off its normal error for 4× its few seconds of generation
+/// (docs/training.md). A model given with `--weights` draws once, as the authors sample: a
+/// full-size model's generation takes minutes.
 #[cfg(feature = "diffusion")]
-const FROM_IMAGE_DRAWS: usize = 4;
+const SMALL_MODEL_DRAWS: usize = 4;
 
 /// The demo from a photo of spot, with the model of `--weights`.
 #[cfg(feature = "diffusion")]
 fn from_image(args: &DemoArgs, options: &DemoOptions) -> Result<wonder3d::demo::Demo> {
-    let weights = match &args.weights {
-        Some(dir) => dir.clone(),
-        None => small_model_dir()?,
+    let (weights, draws) = match &args.weights {
+        Some(dir) => (dir.clone(), 1),
+        None => (small_model_dir()?, SMALL_MODEL_DRAWS),
     };
     let bar = progress::bar(args.quiet)?;
     bar.set_prefix("load");
-    let generator = crate::generate::load(&weights, &args.sampling, FROM_IMAGE_DRAWS)?;
+    let generator = crate::generate::load(&weights, &args.sampling, draws)?;
     let demo = wonder3d::demo::run_demo_from_image(generator, options, &mut progress::follow(&bar))?;
     bar.finish_and_clear();
     Ok(demo)

@@ -48,8 +48,8 @@ pub struct SamplingArgs {
     #[arg(long, default_value_t = 42, allow_hyphen_values = true, value_parser = crate::args::seed)]
     pub seed: u64,
     /// Draws to generate (seeds `seed`, `seed + 1`, …), merged per pixel into their consensus;
-    /// each costs a whole generation [default: 1, the authors' sampling; `demo --from-image`:
-    /// 4, which lowers the small model's normal error by 1–2° (docs/training.md)].
+    /// each costs a whole generation [default: 1, the authors' sampling; `demo --from-image`
+    /// with the small model: 4, which lowers its normal error by 1–2° (docs/training.md)].
     #[arg(long, allow_hyphen_values = true, value_parser = crate::args::draws)]
     pub draws: Option<usize>,
     /// Refuse automatic background removal less confident than this, in [0, 1] (photos

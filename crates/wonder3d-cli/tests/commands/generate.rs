@@ -153,6 +153,8 @@ fn demo_from_image_goes_from_a_photo_to_a_scored_mesh() {
         &tiny_weights(),
         "--steps",
         "2",
+        "--draws",
+        "2",
         "--out",
         out.to_str().unwrap(),
         "--preset",
@@ -170,8 +172,7 @@ fn demo_from_image_goes_from_a_photo_to_a_scored_mesh() {
     let angle = agreement["normal_angle_deg"].as_f64().unwrap();
     assert!((0.0..=180.0).contains(&angle) && agreement["pixels"].as_u64().unwrap() > 100, "{report}");
     assert_eq!(report["pipeline"]["generation"]["steps"].as_u64(), Some(2), "{report}");
-    // The demo merges four draws unless told otherwise.
-    assert_eq!(report["pipeline"]["generation"]["draws"].as_u64(), Some(4), "{report}");
+    assert_eq!(report["pipeline"]["generation"]["draws"].as_u64(), Some(2), "{report}");
     assert!(out.join("spot.glb").is_file() && out.join("views.png").is_file());
     // A missing model directory is named, and --weights needs --from-image.
     let missing = dir.path().join("no-model");
