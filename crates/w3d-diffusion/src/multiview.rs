@@ -802,16 +802,30 @@ impl MultiViewPipeline {
         device: &Device,
         progress: &mut dyn FnMut(usize, usize),
     ) -> Result<GeneratedViews, Error> {
+        let input = prepare_input(rgba, self.image_size as u32)?;
+        let cond = self.condition(&input, device)?;
+        self.sample_views(&cond, options, device, progress)
+    }
+
+    /// The views of one conditioning: `options.draws` draws (seeded noise,
+    /// [`MultiViewPipeline::sample_from`], [`MultiViewPipeline::decode`]; seeds `seed`,
+    /// `seed + 1`, …) merged into their [`GeneratedViews::consensus`], one draw as it is.
+    /// `progress` counts the denoising steps of all draws together.
+    pub fn sample_views(
+        &self,
+        cond: &Conditioning,
+        options: &SampleOptions,
+        device: &Device,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Result<GeneratedViews, Error> {
         if options.draws == 0 {
             return Err(Error::invalid("draws", "at least 1 draw (found 0)"));
         }
-        let input = prepare_input(rgba, self.image_size as u32)?;
-        let cond = self.condition(&input, device)?;
         let mut draws = Vec::with_capacity(options.draws);
         for k in 0..options.draws {
             let draw = SampleOptions { seed: options.seed.wrapping_add(k as u64), ..*options };
             let noise = self.initial_noise(draw.seed, device);
-            let latents = self.sample_from(noise, &cond, &draw, &mut |i, n| {
+            let latents = self.sample_from(noise, cond, &draw, &mut |i, n| {
                 progress(k * n + i, options.draws * n);
             })?;
             draws.push(self.decode(latents, options.camera)?);

@@ -122,7 +122,8 @@ impl Generator {
     /// photo without a meaningful alpha, whose background is first removed by
     /// [`w3d_photo::prepare`] (an error naming the reasons when that is not confident
     /// enough). Then preprocessing (crop, 75 % framing on white), CLIP and VAE conditions,
-    /// guided sampling (one [`Stage::Denoise`] event per step), decoding.
+    /// guided sampling (one [`Stage::Denoise`] event per step, over all of
+    /// [`SampleOptions::draws`]), decoding, and the draws' consensus.
     pub fn generate(&self, image: &Image, progress: &mut dyn FnMut(Progress)) -> Result<Generated> {
         self.generate_with(image, &self.options, progress)
     }
@@ -146,12 +147,11 @@ impl Generator {
         let input = prepare_input(rgba, self.pipeline.image_size() as u32)?;
         let cond = self.pipeline.condition(&input, &self.device)?;
         progress(Progress::new(Stage::Condition, 1, 1, None));
-        let noise = self.pipeline.initial_noise(options.seed, &self.device);
-        let latents = self.pipeline.sample_from(noise, &cond, options, &mut |done, total| {
+        let generated = self.pipeline.sample_views(&cond, options, &self.device, &mut |done, total| {
             progress(Progress::new(Stage::Denoise, done, total, None))
         })?;
         progress(Progress::new(Stage::Decode, 0, 1, None));
-        let views = self.pipeline.decode(latents, options.camera)?.to_view_set()?;
+        let views = generated.to_view_set()?;
         progress(Progress::new(Stage::Decode, 1, 1, None));
         Ok(Generated { views, input })
     }
