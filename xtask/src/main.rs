@@ -53,7 +53,7 @@
 //!   vertex and index counts of the file's accessors (and the given counts), uvs on every
 //!   mesh, and a base-colour texture wherever the file has one. Node has no image decoder,
 //!   so texture images are checked for being present, not decoded.
-//! - `cargo xtask train-small [--out DIR] [--quick] [--resume] [--phase-steps N,N,N,N,N,N]`, `cargo xtask eval-small [--model DIR] [--sheet PNG]`,
+//! - `cargo xtask train-small [--out DIR] [--quick] [--resume] [--phase-steps N,…]`, `cargo xtask eval-small [--model DIR] [--sheet PNG]`,
 //!   `cargo xtask ship-small [--model DIR]`: the small model's recipe, its scores
 //!   (`--sheet docs/img/small_model.png` for the committed picture) and its f16 copy in `assets/model-small`
 //!   (`docs/training.md`); `cargo xtask tune-decoder --data DIR --out DIR [--model DIR]
@@ -114,9 +114,9 @@ enum Task {
         /// uninterrupted run's).
         #[arg(long)]
         resume: bool,
-        /// Steps of the six UNet phases (stages 1, 2, 3, joint, joint2, cool-down), comma
-        /// separated, instead of the recipe's; to try a shorter schedule. Recorded in
-        /// `recipe.json`.
+        /// Steps of the eight UNet phases (stages 1, 2, 3, joint, joint2, cool-down, joint3,
+        /// cool-down 2), comma separated, instead of the recipe's; to try a shorter schedule
+        /// (0 leaves a phase after the three stages out). Recorded in `recipe.json`.
         #[arg(long, value_delimiter = ',')]
         phase_steps: Option<Vec<usize>>,
     },
