@@ -343,7 +343,6 @@ impl GeneratedViews {
                 ));
             }
         }
-        let white = |p: &[f32]| p.iter().all(|&v| v > BACKGROUND_THRESHOLD);
         let mut normals = Vec::with_capacity(first.normals.len());
         let mut colours = Vec::with_capacity(first.normals.len());
         for view in 0..first.normals.len() {
@@ -358,15 +357,11 @@ impl GeneratedViews {
                 let range = 3 * px..3 * px + 3;
                 let (mut sum, mut rgb, mut count) = ([0.0f32; 3], [0.0f32; 3], 0usize);
                 for d in draws {
-                    let (n, c) = (&d.normals[view].data()[range.clone()], &d.colours[view].data()[range.clone()]);
-                    let v = [2.0 * n[0] - 1.0, 2.0 * n[1] - 1.0, 2.0 * n[2] - 1.0];
-                    let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-                    if (white(n) && white(c)) || len < 1e-6 {
-                        continue;
-                    }
+                    let c = &d.colours[view].data()[range.clone()];
+                    let Some(n) = object_normal(&d.normals[view].data()[range.clone()], c) else { continue };
                     count += 1;
                     for i in 0..3 {
-                        sum[i] += v[i] / len;
+                        sum[i] += n[i];
                         rgb[i] += c[i];
                     }
                 }
@@ -385,6 +380,16 @@ impl GeneratedViews {
         }
         Ok(GeneratedViews { camera: first.camera, normals, colours })
     }
+}
+
+/// The unit normal of one generated pixel (`normal_rgb` = (n + 1) / 2, `colour` its colour),
+/// or `None` where the pixel is background: both images white (every channel above
+/// [`BACKGROUND_THRESHOLD`]) or no direction drawn.
+fn object_normal(normal_rgb: &[f32], colour: &[f32]) -> Option<[f32; 3]> {
+    let white = |p: &[f32]| p.iter().all(|&v| v > BACKGROUND_THRESHOLD);
+    let v = [2.0 * normal_rgb[0] - 1.0, 2.0 * normal_rgb[1] - 1.0, 2.0 * normal_rgb[2] - 1.0];
+    let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    (!(white(normal_rgb) && white(colour)) && len >= 1e-6).then(|| v.map(|x| x / len))
 }
 
 /// A [`ViewSet`] of `rig` from normal maps as the diffusion models draw them (RGB =
@@ -407,15 +412,15 @@ pub fn views_from_images(rig: ViewRig, normals: &[Image], colours: &[Image]) -> 
         let mut normal = Vec::with_capacity((w * h * 3) as usize);
         let mut mask = Vec::with_capacity((w * h) as usize);
         for (n, c) in normal_rgb.data().chunks_exact(3).zip(colour.data().chunks_exact(3)) {
-            let white = |p: &[f32]| p.iter().all(|&v| v > BACKGROUND_THRESHOLD);
-            let v = [2.0 * n[0] - 1.0, 2.0 * n[1] - 1.0, 2.0 * n[2] - 1.0];
-            let len = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            if (white(n) && white(c)) || len < 1e-6 {
-                normal.extend([0.0; 3]);
-                mask.push(0.0);
-            } else {
-                normal.extend(v.map(|x| x / len));
-                mask.push(1.0);
+            match object_normal(n, c) {
+                Some(unit) => {
+                    normal.extend(unit);
+                    mask.push(1.0);
+                }
+                None => {
+                    normal.extend([0.0; 3]);
+                    mask.push(0.0);
+                }
             }
         }
         views.push(ViewImages {
@@ -821,12 +826,13 @@ impl MultiViewPipeline {
         if options.draws == 0 {
             return Err(Error::invalid("draws", "at least 1 draw (found 0)"));
         }
-        let mut draws = Vec::with_capacity(options.draws);
+        // Grown draw by draw: `draws` is the caller's number, not memory to claim up front.
+        let mut draws = Vec::new();
         for k in 0..options.draws {
             let draw = SampleOptions { seed: options.seed.wrapping_add(k as u64), ..*options };
             let noise = self.initial_noise(draw.seed, device);
             let latents = self.sample_from(noise, cond, &draw, &mut |i, n| {
-                progress(k * n + i, options.draws * n);
+                progress(k.saturating_mul(n).saturating_add(i), options.draws.saturating_mul(n));
             })?;
             draws.push(self.decode(latents, options.camera)?);
         }
