@@ -393,7 +393,11 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[u
         let steps = schedule.stage_steps[i];
         let stage_dir = out.join(phase.dir);
         if steps == 0 {
-            // A phase of 0 steps (`--phase-steps`) is left out.
+            // A phase of 0 steps (`--phase-steps`) is left out; a fresh run does not keep an
+            // earlier run's folder of it beside its own phases.
+            if !resume && stage_dir.exists() {
+                std::fs::remove_dir_all(&stage_dir).map_err(|e| format!("{}: {e}", stage_dir.display()))?;
+            }
             eprintln!("[{:6.0}s] {}: 0 steps, left out", started.elapsed().as_secs_f64(), phase.dir);
             continue;
         }
