@@ -21,8 +21,10 @@ pub struct ModelArgs {
     pub sampling: SamplingArgs,
 }
 
-/// Sampling and input options of the model, shared by `generate`, `run` and `batch`
-/// (defaults: the Wonder3D++ sampling settings — 50 DDIM steps, guidance 2, eta 1, seed 42).
+/// Sampling and input options of the model, shared by `generate`, `run`, `batch` and `demo`
+/// (defaults: the Wonder3D++ sampling settings — 50 DDIM steps, guidance 2, eta 1, seed 42,
+/// one draw; `demo --from-image` with the small model overrides guidance and draws, see
+/// [`SamplingDefaults`]).
 #[derive(clap::Args)]
 #[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
 pub struct SamplingArgs {
@@ -38,9 +40,11 @@ pub struct SamplingArgs {
     /// Sampling steps (50 is the authors' DDIM setting; 20 with dpmpp-2m or unipc).
     #[arg(long, default_value_t = 50, allow_hyphen_values = true, value_parser = crate::args::steps)]
     pub steps: usize,
-    /// Classifier-free guidance scale (1 = no unconditional branch).
-    #[arg(long, default_value_t = 2.0, allow_hyphen_values = true, value_parser = crate::args::guidance)]
-    pub guidance: f64,
+    /// Classifier-free guidance scale; 1 skips the unconditional branch and halves the
+    /// generation [default: 2, the authors' setting; `demo --from-image` with the small
+    /// model: 1, as good for it at half the cost (docs/training.md)].
+    #[arg(long, allow_hyphen_values = true, value_parser = crate::args::guidance)]
+    pub guidance: Option<f64>,
     /// DDIM eta: 0 deterministic, 1 the reference's stochastic sampling (dpmpp-2m and unipc ignore it).
     #[arg(long, default_value_t = 1.0, allow_hyphen_values = true, value_parser = crate::args::eta)]
     pub eta: f64,
@@ -56,6 +60,24 @@ pub struct SamplingArgs {
     /// without alpha; 0 accepts every mask).
     #[arg(long, default_value_t = 0.5)]
     pub min_confidence: f32,
+}
+
+/// The sampling settings a command uses where the command line leaves them out: the ones
+/// that suit one model and not another (the small model trained here samples as well without
+/// guidance and gains from several draws; a full-size model is sampled as its authors do).
+#[derive(Debug, Clone, Copy, PartialEq)]
+#[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
+pub struct SamplingDefaults {
+    /// Classifier-free guidance scale.
+    pub guidance: f64,
+    /// Draws merged into their consensus.
+    pub draws: usize,
+}
+
+impl SamplingDefaults {
+    /// The authors' sampling: guidance 2, one draw.
+    #[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
+    pub const AUTHORS: Self = Self { guidance: 2.0, draws: 1 };
 }
 
 impl SamplingArgs {
@@ -94,14 +116,23 @@ mod with_model {
     use wonder3d::{CameraType, ComputeDevice, Generator, SampleOptions, SamplerKind};
 
     /// Loads the model in `weights` onto the device of `args`, with its sampling options
-    /// (`default_draws` where `--draws` is not given). The device opens first, so a missing
-    /// GPU backend is named before the weights are read; a GPU is named on stderr (with a
-    /// warning when it is a software adapter).
-    pub fn load(weights: &std::path::Path, args: &SamplingArgs, default_draws: usize) -> Result<Generator> {
+    /// (`defaults` where the command line leaves guidance or draws out). The device opens
+    /// first, so a missing GPU backend is named before the weights are read; a GPU is named on
+    /// stderr (with a warning when it is a software adapter).
+    pub fn load(weights: &std::path::Path, args: &SamplingArgs, defaults: SamplingDefaults) -> Result<Generator> {
         let device = args.device.compute_device().open()?;
         if device.kind != ComputeDevice::Cpu {
             eprintln!("device: {}", device.description);
         }
+        let options = sample_options(args, defaults);
+        Ok(Generator::load_on(weights, device.device)?
+            .with_options(options)
+            .with_prepare_options(args.prepare_options()?))
+    }
+
+    /// The sampling options of `args`, with `defaults` where the command line leaves guidance
+    /// or draws out.
+    pub(super) fn sample_options(args: &SamplingArgs, defaults: SamplingDefaults) -> SampleOptions {
         let camera = match args.camera {
             CameraArg::Ortho => CameraType::Orthographic,
             CameraArg::Persp => CameraType::Perspective,
@@ -111,18 +142,15 @@ mod with_model {
             SchedulerArg::DpmPp2m => SamplerKind::DpmSolverPlusPlus2M,
             SchedulerArg::Unipc => SamplerKind::UniPc,
         };
-        let options = SampleOptions {
+        SampleOptions {
             sampler,
             steps: args.steps,
-            guidance: args.guidance,
+            guidance: args.guidance.unwrap_or(defaults.guidance),
             eta: args.eta,
             camera,
             seed: args.seed,
-            draws: args.draws.unwrap_or(default_draws),
-        };
-        Ok(Generator::load_on(weights, device.device)?
-            .with_options(options)
-            .with_prepare_options(args.prepare_options()?))
+            draws: args.draws.unwrap_or(defaults.draws),
+        }
     }
 
     /// Runs `wonder3d generate`.
@@ -137,7 +165,7 @@ mod with_model {
         let bar = progress::bar(args.quiet)?;
         bar.set_prefix("load");
         bar.set_message(format!("weights from {}", args.model.weights.display()));
-        let generator = load(&args.model.weights, &args.model.sampling, 1)?;
+        let generator = load(&args.model.weights, &args.model.sampling, SamplingDefaults::AUTHORS)?;
         let generated = generator.generate(&rgba, &mut progress::follow(&bar))?;
         bar.finish_and_clear();
         generated.save(&args.out)?;
@@ -171,4 +199,35 @@ pub fn without_model() -> Error {
 #[cfg(not(feature = "diffusion"))]
 pub fn run(_: &GenerateArgs) -> Result<()> {
     Err(without_model())
+}
+
+#[cfg(all(test, feature = "diffusion"))]
+mod tests {
+    use super::*;
+    use clap::Parser;
+
+    #[derive(Parser)]
+    struct Cli {
+        #[command(flatten)]
+        sampling: SamplingArgs,
+    }
+
+    fn options(flags: &[&str], defaults: SamplingDefaults) -> wonder3d::SampleOptions {
+        let cli = Cli::try_parse_from(std::iter::once("wonder3d").chain(flags.iter().copied())).unwrap();
+        with_model::sample_options(&cli.sampling, defaults)
+    }
+
+    /// A command's defaults fill in what the command line leaves out, and only that.
+    #[test]
+    fn flags_override_a_commands_sampling_defaults() {
+        let small = SamplingDefaults { guidance: 1.0, draws: 4 };
+        let o = options(&[], small);
+        assert_eq!((o.guidance, o.draws, o.steps, o.eta, o.seed), (1.0, 4, 50, 1.0, 42));
+        let o = options(&["--guidance", "3", "--draws", "2"], small);
+        assert_eq!((o.guidance, o.draws), (3.0, 2));
+        let o = options(&["--draws", "1"], SamplingDefaults::AUTHORS);
+        assert_eq!((o.guidance, o.draws), (2.0, 1));
+        let o = options(&[], SamplingDefaults::AUTHORS);
+        assert_eq!((o.guidance, o.draws), (2.0, 1));
+    }
 }

@@ -173,6 +173,8 @@ fn demo_from_image_goes_from_a_photo_to_a_scored_mesh() {
     assert!((0.0..=180.0).contains(&angle) && agreement["pixels"].as_u64().unwrap() > 100, "{report}");
     assert_eq!(report["pipeline"]["generation"]["steps"].as_u64(), Some(2), "{report}");
     assert_eq!(report["pipeline"]["generation"]["draws"].as_u64(), Some(2), "{report}");
+    // A model given with --weights is sampled as the authors do where the flags are left out.
+    assert_eq!(report["pipeline"]["generation"]["guidance"].as_f64(), Some(2.0), "{report}");
     assert!(out.join("spot.glb").is_file() && out.join("views.png").is_file());
     // A missing model directory is named, and --weights needs --from-image.
     let missing = dir.path().join("no-model");
