@@ -128,9 +128,10 @@ struct Phase {
 /// only background inference uses — a model this small generates garbage from an input on a
 /// background other than the one its sample was trained on (docs/training.md). The second
 /// joint phase continues the first with fresh optimizer moments and an EMA of the weights;
-/// a cool-down starts from that average and brings the learning rate down to 0. A third joint
-/// phase and a second cool-down repeat the last two from the cooled model: the moving average
-/// alone scores no better than its start, the cool-down after it does (docs/training.md).
+/// a cool-down starts from that average and brings the learning rate down to 0. A third and a
+/// fourth joint phase, each with its cool-down, repeat the last two from the cooled model: the
+/// moving average alone scores no better than its start, the cool-down after it does
+/// (docs/training.md).
 const PHASES: [Phase; PHASE_COUNT] = [
     Phase {
         dir: "stage1",
@@ -204,10 +205,28 @@ const PHASES: [Phase; PHASE_COUNT] = [
         ema_decay: None,
         cool_down: true,
     },
+    Phase {
+        dir: "joint4",
+        stage: Stage::CrossDomain,
+        train_all: true,
+        white: true,
+        seed: 5,
+        ema_decay: Some(0.999),
+        cool_down: false,
+    },
+    Phase {
+        dir: "cooldown3",
+        stage: Stage::CrossDomain,
+        train_all: true,
+        white: true,
+        seed: 6,
+        ema_decay: None,
+        cool_down: true,
+    },
 ];
 
 /// The number of UNet phases ([`PHASES`]).
-pub(crate) const PHASE_COUNT: usize = 8;
+pub(crate) const PHASE_COUNT: usize = 10;
 
 /// The schedule of one run.
 #[derive(Clone, Copy, Debug)]
@@ -235,11 +254,11 @@ impl Schedule {
             samples: 12,
             size: 64,
             vae_steps: 1200,
-            // The last two phases (added on 2026-12-06) took 2.3–4.6° off the generated
-            // normals' error of every training object (docs/training.md).
-            stage_steps: [800, 6000, 1000, 3000, 22000, 2000, 20000, 2000],
-            stage_warmup: [40, 300, 75, 50, 50, 50, 50, 50],
-            stage_lr: [5e-4, 3e-4, 2e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4],
+            // The last four phases (added on 2026-12-06) lowered the generated normals' error
+            // of every training object (docs/training.md, "Where the error comes from").
+            stage_steps: [800, 6000, 1000, 3000, 22000, 2000, 20000, 2000, 7000, 2000],
+            stage_warmup: [40, 300, 75, 50, 50, 50, 50, 50, 50, 50],
+            stage_lr: [5e-4, 3e-4, 2e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4],
             // The second pass (added on 2026-12-05) lowered the decoder's own error on the
             // training views from 15.4–30.3° to 11.1–20.7° and the generated normals' by
             // 0.2–4.8° (docs/training.md).
