@@ -115,8 +115,9 @@ enum Task {
         #[arg(long)]
         resume: bool,
         /// Steps of the ten UNet phases (stages 1, 2, 3, joint, joint2, cool-down, joint3,
-        /// cool-down 2, joint4, cool-down 3), comma separated, instead of the recipe's; to try a shorter schedule
-        /// (0 leaves a phase after the three stages out). Recorded in `recipe.json`.
+        /// cool-down 2, joint4, cool-down 3), comma separated, instead of the recipe's; to try a
+        /// shorter schedule (0 leaves a phase after the three stages out). Recorded in
+        /// `recipe.json`.
         #[arg(long, value_delimiter = ',')]
         phase_steps: Option<Vec<usize>>,
     },
