@@ -1,7 +1,8 @@
 //! `cargo xtask eval-small [--model DIR]`: the small model from images to meshes, scored
 //! (`docs/training.md`): for training objects and the held-out one, the front colour view of
 //! a dataset sample (seed 0, sample 0: a training sample for the training objects) goes
-//! through `MultiViewPipeline::generate`; the 6 generated normal maps are compared with the
+//! through `MultiViewPipeline::generate`, sampled as `wonder3d demo --from-image` samples the
+//! small model unless the flags say otherwise; the 6 generated normal maps are compared with the
 //! truth inside the true masks (mean angular error, also without the silhouette's one-pixel
 //! rim, where an outline off by a pixel weighs most), the generated masks with the true ones
 //! (IoU), and the mesh reconstructed from the generated views with the posed object
@@ -166,10 +167,27 @@ pub(crate) fn run(
     model: &Path,
     out: &Path,
     sampling: &Sampling,
+    objects: Option<&str>,
     sheet_path: Option<&Path>,
     data: Option<&Path>,
 ) -> Result<(), String> {
     let root = crate::workspace_root();
+    // Every training object, then the held-out one; or those `objects` names, checked before
+    // the model loads.
+    let stem = |mesh_path: &str| Path::new(mesh_path).file_stem().map(|s| s.to_string_lossy().into_owned());
+    let all: Vec<&str> = TRAIN_MESHES.iter().copied().chain([HELD_OUT_MESH]).collect();
+    let picks: Vec<&str> = match objects {
+        None => all,
+        Some(list) => list
+            .split(',')
+            .map(|name| {
+                all.iter().copied().find(|m| stem(m).as_deref() == Some(name.trim())).ok_or_else(|| {
+                    let names: Vec<String> = all.iter().filter_map(|m| stem(m)).collect();
+                    format!("--objects: no object {:?} (one of {})", name.trim(), names.join(", "))
+                })
+            })
+            .collect::<Result<_, _>>()?,
+    };
     let picture = sheet_path.map_or_else(|| out.join("small_model.png"), |p| root.join(p));
     // The explicit sheet's folder is checked before minutes of generation, not after.
     if let Some(parent) = sheet_path.and(picture.parent()).filter(|p| !p.is_dir()) {
@@ -185,8 +203,6 @@ pub(crate) fn run(
     };
     let size = pipeline.image_size() as u32;
     std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
-    // Every training object, then the held-out one.
-    let picks = TRAIN_MESHES.iter().copied().chain([HELD_OUT_MESH]);
     let mut rows = Vec::new();
     let mut records = Vec::new();
     for mesh_path in picks {
@@ -222,7 +238,7 @@ pub(crate) fn run(
         let t = Instant::now();
         let generated = if sampling.independent_noise {
             if sampling.draws != 1 {
-                return Err("--independent-noise draws once (leave out --draws)".into());
+                return Err("--independent-noise draws once (--draws 1)".into());
             }
             let input = wonder3d::diffusion::prepare_input(&rgba, size).map_err(err)?;
             let cond = pipeline.condition(&input, &device).map_err(err)?;
@@ -238,7 +254,7 @@ pub(crate) fn run(
         let agreement = wonder3d::eval::view_agreement(&truth, &views).map_err(err)?;
         let (angle, iou) = (agreement.normal_angle_deg, agreement.mask_iou);
         let ceiling = vae_round_trip(&pipeline, &truth, camera, &device)?;
-        let name = Path::new(mesh_path).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        let name = stem(mesh_path).unwrap_or_default();
         views.save(out.join(&name)).map_err(err)?;
         let recon = reconstruct(&views, &ReconOptions::preset(Preset::Default), &mut |_| {});
         let chamfer = match &recon {

@@ -53,7 +53,7 @@
 //!   vertex and index counts of the file's accessors (and the given counts), uvs on every
 //!   mesh, and a base-colour texture wherever the file has one. Node has no image decoder,
 //!   so texture images are checked for being present, not decoded.
-//! - `cargo xtask train-small [--out DIR] [--quick] [--resume] [--phase-steps N,…]`, `cargo xtask eval-small [--model DIR] [--sheet PNG]`,
+//! - `cargo xtask train-small [--out DIR] [--quick] [--resume] [--phase-steps N,…]`, `cargo xtask eval-small [--model DIR] [--objects spot,…] [--sheet PNG]`,
 //!   `cargo xtask ship-small [--model DIR]`: the small model's recipe, its scores
 //!   (`--sheet docs/img/small_model.png` for the committed picture) and its f16 copy in `assets/model-small`
 //!   (`docs/training.md`); `cargo xtask tune-decoder --data DIR --out DIR [--model DIR]
@@ -162,9 +162,10 @@ enum Task {
         /// Sampler: ddim, dpmpp-2m or unipc.
         #[arg(long, default_value = "ddim")]
         sampler: String,
-        /// Classifier-free guidance scale.
-        #[arg(long, default_value_t = 2.0)]
-        guidance: f64,
+        /// Classifier-free guidance scale [default: 1, as `wonder3d demo --from-image` samples
+        /// the small model (`wonder3d::demo::small_model_sampling`); the authors' is 2].
+        #[arg(long)]
+        guidance: Option<f64>,
         /// DDIM eta (0 deterministic, 1 the authors' stochastic sampling, as `wonder3d demo
         /// --from-image` samples).
         #[arg(long, default_value_t = 1.0)]
@@ -173,9 +174,14 @@ enum Task {
         /// view shared by both domains (the authors' inference).
         #[arg(long)]
         independent_noise: bool,
-        /// Draws merged into their consensus (`SampleOptions::draws`; seeds 42, 43, …).
-        #[arg(long, default_value_t = 1)]
-        draws: usize,
+        /// Draws merged into their consensus (`SampleOptions::draws`; seeds 42, 43, …)
+        /// [default: 4, as the demo samples the small model; 1 with `--independent-noise`].
+        #[arg(long)]
+        draws: Option<usize>,
+        /// Only these objects (comma-separated file stems, e.g. `spot,koala`; default: every
+        /// training object, then the held-out one).
+        #[arg(long)]
+        objects: Option<String>,
         /// Contact sheet to write, relative to the workspace root (default: `small_model.png`
         /// in the output folder; the committed picture is `--sheet docs/img/small_model.png`,
         /// written only when asked so that a sweep of sampling settings cannot replace it).
@@ -779,9 +785,29 @@ fn main() -> ExitCode {
         Task::TrainSmall { out, quick, resume, phase_steps } => {
             train_small::run(&out, quick, resume, phase_steps.as_deref())
         }
-        Task::EvalSmall { model, out, steps, sampler, guidance, eta, independent_noise, draws, sheet, data } => {
-            let sampling = eval_small::Sampling { sampler, steps, guidance, eta, independent_noise, draws };
-            eval_small::run(&model, &out, &sampling, sheet.as_deref(), data.as_deref())
+        Task::EvalSmall {
+            model,
+            out,
+            steps,
+            sampler,
+            guidance,
+            eta,
+            independent_noise,
+            draws,
+            objects,
+            sheet,
+            data,
+        } => {
+            let demo = wonder3d::demo::small_model_sampling();
+            let sampling = eval_small::Sampling {
+                sampler,
+                steps,
+                guidance: guidance.unwrap_or(demo.guidance),
+                eta,
+                independent_noise,
+                draws: draws.unwrap_or(if independent_noise { 1 } else { demo.draws }),
+            };
+            eval_small::run(&model, &out, &sampling, objects.as_deref(), sheet.as_deref(), data.as_deref())
         }
         Task::ShipSmall { model } => train_small::ship(&model),
         Task::TuneDecoder { model, data, out, steps, lr } => {

@@ -167,11 +167,9 @@ pub fn run(args: &BatchArgs) -> Result<()> {
 #[cfg(feature = "diffusion")]
 fn with_model(batch: Batch, args: &BatchArgs) -> Result<Batch> {
     Ok(match &args.weights {
-        Some(weights) => batch.with_model(crate::generate::load(
-            weights,
-            &args.sampling,
-            crate::generate::SamplingDefaults::AUTHORS,
-        )?),
+        Some(weights) => {
+            batch.with_model(crate::generate::load(weights, &args.sampling, &wonder3d::SampleOptions::default())?)
+        }
         None => batch,
     })
 }

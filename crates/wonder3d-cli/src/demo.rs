@@ -97,26 +97,19 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     Ok(())
 }
 
-/// Sampling of `demo --from-image` with the small model, where the command line leaves it
-/// out: no guidance (guidance 1 skips the unconditional branch, and scores this model as well
-/// as the authors' 2 at half the cost) and 4 draws merged into their consensus, which takes
-/// 1–2° off its normal error (docs/training.md, "Where the error comes from"). A model given
-/// with `--weights` is sampled as the authors do: a full-size model's generation takes
-/// minutes, and its guidance was tuned for it.
-#[cfg(feature = "diffusion")]
-const SMALL_MODEL_SAMPLING: crate::generate::SamplingDefaults =
-    crate::generate::SamplingDefaults { guidance: 1.0, draws: 4 };
-
 /// The demo from a photo of spot, with the model of `--weights`.
 #[cfg(feature = "diffusion")]
 fn from_image(args: &DemoArgs, options: &DemoOptions) -> Result<wonder3d::demo::Demo> {
+    // The small model samples as it scores best; a model given with `--weights` as its
+    // authors sample it (a full-size model's generation takes minutes, and its guidance was
+    // tuned for it).
     let (weights, defaults) = match &args.weights {
-        Some(dir) => (dir.clone(), crate::generate::SamplingDefaults::AUTHORS),
-        None => (small_model_dir()?, SMALL_MODEL_SAMPLING),
+        Some(dir) => (dir.clone(), wonder3d::SampleOptions::default()),
+        None => (small_model_dir()?, wonder3d::demo::small_model_sampling()),
     };
     let bar = progress::bar(args.quiet)?;
     bar.set_prefix("load");
-    let generator = crate::generate::load(&weights, &args.sampling, defaults)?;
+    let generator = crate::generate::load(&weights, &args.sampling, &defaults)?;
     let demo = wonder3d::demo::run_demo_from_image(generator, options, &mut progress::follow(&bar))?;
     bar.finish_and_clear();
     Ok(demo)

@@ -23,8 +23,8 @@ pub struct ModelArgs {
 
 /// Sampling and input options of the model, shared by `generate`, `run`, `batch` and `demo`
 /// (defaults: the Wonder3D++ sampling settings — 50 DDIM steps, guidance 2, eta 1, seed 42,
-/// one draw; `demo --from-image` with the small model overrides guidance and draws, see
-/// [`SamplingDefaults`]).
+/// one draw; `demo --from-image` with the small model samples as
+/// `wonder3d::demo::small_model_sampling` says where guidance and draws are left out).
 #[derive(clap::Args)]
 #[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
 pub struct SamplingArgs {
@@ -60,24 +60,6 @@ pub struct SamplingArgs {
     /// without alpha; 0 accepts every mask).
     #[arg(long, default_value_t = 0.5)]
     pub min_confidence: f32,
-}
-
-/// The sampling settings a command uses where the command line leaves them out: the ones
-/// that suit one model and not another (the small model trained here samples as well without
-/// guidance and gains from several draws; a full-size model is sampled as its authors do).
-#[derive(Debug, Clone, Copy, PartialEq)]
-#[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
-pub struct SamplingDefaults {
-    /// Classifier-free guidance scale.
-    pub guidance: f64,
-    /// Draws merged into their consensus.
-    pub draws: usize,
-}
-
-impl SamplingDefaults {
-    /// The authors' sampling: guidance 2, one draw.
-    #[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
-    pub const AUTHORS: Self = Self { guidance: 2.0, draws: 1 };
 }
 
 impl SamplingArgs {
@@ -116,10 +98,10 @@ mod with_model {
     use wonder3d::{CameraType, ComputeDevice, Generator, SampleOptions, SamplerKind};
 
     /// Loads the model in `weights` onto the device of `args`, with its sampling options
-    /// (`defaults` where the command line leaves guidance or draws out). The device opens
+    /// (the guidance and draws of `defaults` where the command line leaves them out). The device opens
     /// first, so a missing GPU backend is named before the weights are read; a GPU is named on
     /// stderr (with a warning when it is a software adapter).
-    pub fn load(weights: &std::path::Path, args: &SamplingArgs, defaults: SamplingDefaults) -> Result<Generator> {
+    pub fn load(weights: &std::path::Path, args: &SamplingArgs, defaults: &SampleOptions) -> Result<Generator> {
         let device = args.device.compute_device().open()?;
         if device.kind != ComputeDevice::Cpu {
             eprintln!("device: {}", device.description);
@@ -130,9 +112,9 @@ mod with_model {
             .with_prepare_options(args.prepare_options()?))
     }
 
-    /// The sampling options of `args`, with `defaults` where the command line leaves guidance
-    /// or draws out.
-    pub(super) fn sample_options(args: &SamplingArgs, defaults: SamplingDefaults) -> SampleOptions {
+    /// The sampling options of `args`, with the guidance and draws of `defaults` where the
+    /// command line leaves them out (every other setting has a command-line default).
+    fn sample_options(args: &SamplingArgs, defaults: &SampleOptions) -> SampleOptions {
         let camera = match args.camera {
             CameraArg::Ortho => CameraType::Orthographic,
             CameraArg::Persp => CameraType::Perspective,
@@ -165,7 +147,7 @@ mod with_model {
         let bar = progress::bar(args.quiet)?;
         bar.set_prefix("load");
         bar.set_message(format!("weights from {}", args.model.weights.display()));
-        let generator = load(&args.model.weights, &args.model.sampling, SamplingDefaults::AUTHORS)?;
+        let generator = load(&args.model.weights, &args.model.sampling, &SampleOptions::default())?;
         let generated = generator.generate(&rgba, &mut progress::follow(&bar))?;
         bar.finish_and_clear();
         generated.save(&args.out)?;
@@ -199,35 +181,4 @@ pub fn without_model() -> Error {
 #[cfg(not(feature = "diffusion"))]
 pub fn run(_: &GenerateArgs) -> Result<()> {
     Err(without_model())
-}
-
-#[cfg(all(test, feature = "diffusion"))]
-mod tests {
-    use super::*;
-    use clap::Parser;
-
-    #[derive(Parser)]
-    struct Cli {
-        #[command(flatten)]
-        sampling: SamplingArgs,
-    }
-
-    fn options(flags: &[&str], defaults: SamplingDefaults) -> wonder3d::SampleOptions {
-        let cli = Cli::try_parse_from(std::iter::once("wonder3d").chain(flags.iter().copied())).unwrap();
-        with_model::sample_options(&cli.sampling, defaults)
-    }
-
-    /// A command's defaults fill in what the command line leaves out, and only that.
-    #[test]
-    fn flags_override_a_commands_sampling_defaults() {
-        let small = SamplingDefaults { guidance: 1.0, draws: 4 };
-        let o = options(&[], small);
-        assert_eq!((o.guidance, o.draws, o.steps, o.eta, o.seed), (1.0, 4, 50, 1.0, 42));
-        let o = options(&["--guidance", "3", "--draws", "2"], small);
-        assert_eq!((o.guidance, o.draws), (3.0, 2));
-        let o = options(&["--draws", "1"], SamplingDefaults::AUTHORS);
-        assert_eq!((o.guidance, o.draws), (2.0, 1));
-        let o = options(&[], SamplingDefaults::AUTHORS);
-        assert_eq!((o.guidance, o.draws), (2.0, 1));
-    }
 }

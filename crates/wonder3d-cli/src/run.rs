@@ -63,7 +63,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
     let pipeline = Pipeline::new()
         .with_preset(args.preset.into())
         .with_texture_size(args.texture_size)
-        .with_model(generate::load(&args.model.weights, &args.model.sampling, generate::SamplingDefaults::AUTHORS)?);
+        .with_model(generate::load(&args.model.weights, &args.model.sampling, &wonder3d::SampleOptions::default())?);
     let output = pipeline.from_image(&rgba, &mut progress::follow(&bar))?;
     bar.finish_and_clear();
     if let (Some(dir), Some(input)) = (&args.views, &output.input) {
