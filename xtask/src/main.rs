@@ -114,10 +114,10 @@ enum Task {
         /// uninterrupted run's).
         #[arg(long)]
         resume: bool,
-        /// Steps of the ten UNet phases (stages 1, 2, 3, joint, joint2, cool-down, joint3,
-        /// cool-down 2, joint4, cool-down 3), comma separated, instead of the recipe's; to try a
-        /// shorter schedule (0 leaves a phase after the three stages out). Recorded in
-        /// `recipe.json`.
+        /// Steps of the UNet phases (stages 1, 2, 3, joint, joint2, cool-down, joint3,
+        /// cool-down 2, joint4, cool-down 3, joint5, cool-down 4), comma separated, instead of
+        /// the recipe's; to try a shorter schedule. At least the three stages' counts; 0 leaves
+        /// a later phase out, and so does ending the list before it. Recorded in `recipe.json`.
         #[arg(long, value_delimiter = ',')]
         phase_steps: Option<Vec<usize>>,
     },

@@ -128,8 +128,8 @@ struct Phase {
 /// only background inference uses — a model this small generates garbage from an input on a
 /// background other than the one its sample was trained on (docs/training.md). The second
 /// joint phase continues the first with fresh optimizer moments and an EMA of the weights;
-/// a cool-down starts from that average and brings the learning rate down to 0. A third and a
-/// fourth joint phase, each with its cool-down, repeat the last two from the cooled model: the
+/// a cool-down starts from that average and brings the learning rate down to 0. A third, a
+/// fourth and a fifth joint phase, each with its cool-down, repeat the last two from the cooled model: the
 /// moving average alone scores no better than its start, the cool-down after it does
 /// (docs/training.md).
 const PHASES: [Phase; PHASE_COUNT] = [
@@ -223,10 +223,28 @@ const PHASES: [Phase; PHASE_COUNT] = [
         ema_decay: None,
         cool_down: true,
     },
+    Phase {
+        dir: "joint5",
+        stage: Stage::CrossDomain,
+        train_all: true,
+        white: true,
+        seed: 7,
+        ema_decay: Some(0.999),
+        cool_down: false,
+    },
+    Phase {
+        dir: "cooldown4",
+        stage: Stage::CrossDomain,
+        train_all: true,
+        white: true,
+        seed: 8,
+        ema_decay: None,
+        cool_down: true,
+    },
 ];
 
 /// The number of UNet phases ([`PHASES`]).
-pub(crate) const PHASE_COUNT: usize = 10;
+pub(crate) const PHASE_COUNT: usize = 12;
 
 /// The schedule of one run.
 #[derive(Clone, Copy, Debug)]
@@ -254,11 +272,11 @@ impl Schedule {
             samples: 12,
             size: 64,
             vae_steps: 1200,
-            // The last four phases (added on 2026-12-06) lowered the generated normals' error
+            // The last six phases (added on 2026-12-06) lowered the generated normals' error
             // of every training object (docs/training.md, "Where the error comes from").
-            stage_steps: [800, 6000, 1000, 3000, 22000, 2000, 20000, 2000, 7000, 2000],
-            stage_warmup: [40, 300, 75, 50, 50, 50, 50, 50, 50, 50],
-            stage_lr: [5e-4, 3e-4, 2e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4],
+            stage_steps: [800, 6000, 1000, 3000, 22000, 2000, 20000, 2000, 7000, 2000, 4000, 2000],
+            stage_warmup: [40, 300, 75, 50, 50, 50, 50, 50, 50, 50, 50, 50],
+            stage_lr: [5e-4, 3e-4, 2e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4],
             // The second pass (added on 2026-12-05) lowered the decoder's own error on the
             // training views from 15.4–30.3° to 11.1–20.7° and the generated normals' by
             // 0.2–4.8° (docs/training.md).
@@ -287,6 +305,21 @@ impl Schedule {
     }
 }
 
+/// The step counts of every UNet phase from `--phase-steps`: the first phases' counts, 0 for
+/// the phases after them, so that a schedule written before later phases were added still
+/// means the same run. The three stages need at least 1 step each.
+fn phase_steps_of(steps: &[usize]) -> Result<[usize; PHASE_COUNT], String> {
+    if !(3..=PHASE_COUNT).contains(&steps.len()) || steps[..3].contains(&0) {
+        return Err(format!(
+            "--phase-steps: 3 to {PHASE_COUNT} step counts (the phases after the last one are left out), \
+             those of the three stages at least 1 (found {steps:?})"
+        ));
+    }
+    let mut all = [0; PHASE_COUNT];
+    all[..steps.len()].copy_from_slice(steps);
+    Ok(all)
+}
+
 fn config_dir() -> PathBuf {
     crate::workspace_root().join("crates").join("w3d-diffusion").join("configs").join("small")
 }
@@ -306,18 +339,13 @@ fn checkpoint_step(stage_dir: &Path) -> Option<usize> {
 /// set and the VAE are reused, a stage whose checkpoint reached its step count is loaded, one
 /// that stopped short resumes from its checkpoint (exactly, see `run_training`), and once a
 /// stage has trained, the stages after it start afresh. The result is the uninterrupted
-/// run's. `phase_steps` replaces the schedule's step counts of the UNet phases (0 leaves a
-/// phase after the three stages out).
+/// run's. `phase_steps` replaces the schedule's step counts of the first UNet phases (at least
+/// the three stages'); a phase after the three stages with 0 steps, or after the last count, is
+/// left out.
 pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[usize]>) -> Result<(), String> {
     let mut schedule = if quick { Schedule::quick() } else { Schedule::full() };
     if let Some(steps) = phase_steps {
-        schedule.stage_steps = steps
-            .try_into()
-            .ok()
-            .filter(|s: &[usize; PHASE_COUNT]| s[..3].iter().all(|&n| n > 0))
-            .ok_or_else(|| {
-            format!("--phase-steps: {PHASE_COUNT} step counts, those of the three stages at least 1 (found {steps:?})")
-        })?;
+        schedule.stage_steps = phase_steps_of(steps)?;
     }
     let root = crate::workspace_root();
     let started = Instant::now();
