@@ -38,6 +38,8 @@
 
 use std::time::Instant;
 
+use crate::curve::uniform_triangles_at;
+
 use plotters::prelude::*;
 use serde_json::{Value, json};
 use wonder3d::eval::{EvalOptions, evaluate, surface_chamfer};
@@ -111,24 +113,6 @@ fn refined(
     let out =
         refine(coarse, views, &OracleEnhancer::new(truth.clone()), &options, &mut |_| {}).map_err(|e| e.to_string())?;
     Ok((out.geometry, t.elapsed().as_secs_f64()))
-}
-
-/// Triangles the uniform curve needs to reach `cd`: `Ok(n)` interpolated between the two
-/// uniform points that bracket it, `Err(true)` when even the finest uniform mesh stays above
-/// it, `Err(false)` when the coarsest is already below it.
-fn uniform_triangles_at(uniform: &[(f64, f64)], cd: f64) -> Result<f64, bool> {
-    // `uniform`: (triangles, CD), coarse to fine.
-    if uniform.first().is_some_and(|&(_, c)| c <= cd) {
-        return Err(false);
-    }
-    for w in uniform.windows(2) {
-        let ((n0, c0), (n1, c1)) = (w[0], w[1]);
-        if c1 <= cd && c0 > cd {
-            let t = (c0 - cd) / (c0 - c1);
-            return Ok((n0.ln() + t * (n1.ln() - n0.ln())).exp());
-        }
-    }
-    Err(true)
 }
 
 /// `(triangles, surface CD)` of one point.
@@ -441,18 +425,4 @@ fn chart(rows: &[Value], out: &std::path::Path) -> Result<(), String> {
         .map_err(|e| e.to_string())?;
     root.present().map_err(|e| e.to_string())?;
     Ok(())
-}
-
-#[cfg(test)]
-mod tests {
-    use super::uniform_triangles_at;
-
-    #[test]
-    fn uniform_triangles_interpolate_in_log_space() {
-        let curve = [(1000.0, 0.004), (4000.0, 0.002)];
-        let n = uniform_triangles_at(&curve, 0.003).unwrap();
-        assert!((n - 2000.0).abs() < 1e-6, "{n}");
-        assert_eq!(uniform_triangles_at(&curve, 0.001), Err(true));
-        assert_eq!(uniform_triangles_at(&curve, 0.005), Err(false));
-    }
 }

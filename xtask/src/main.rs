@@ -66,6 +66,7 @@ use std::process::{Command, ExitCode};
 use clap::{Parser, Subcommand};
 
 mod chart;
+mod curve;
 mod eval_small;
 mod faces_chart;
 mod gpu;
