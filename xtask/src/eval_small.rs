@@ -171,6 +171,9 @@ pub(crate) fn run(
     sheet_path: Option<&Path>,
     data: Option<&Path>,
 ) -> Result<(), String> {
+    if sampling.independent_noise && sampling.draws != 1 {
+        return Err("--independent-noise draws once (--draws 1)".into());
+    }
     let root = crate::workspace_root();
     // Every training object, then the held-out one; or those `objects` names, checked before
     // the model loads.
@@ -237,9 +240,6 @@ pub(crate) fn run(
         };
         let t = Instant::now();
         let generated = if sampling.independent_noise {
-            if sampling.draws != 1 {
-                return Err("--independent-noise draws once (--draws 1)".into());
-            }
             let input = wonder3d::diffusion::prepare_input(&rgba, size).map_err(err)?;
             let cond = pipeline.condition(&input, &device).map_err(err)?;
             let [v, c, h, w] = pipeline.noise_shape();

@@ -123,124 +123,46 @@ struct Phase {
     cool_down: bool,
 }
 
+impl Phase {
+    /// One of Wonder3D++'s stages: its own trainable set, on the dataset's backgrounds.
+    const fn stage(dir: &'static str, stage: Stage, seed: u64) -> Self {
+        Self { dir, stage, train_all: false, white: false, seed, ema_decay: None, cool_down: false }
+    }
+
+    /// A joint phase: the whole UNet with the cross-domain attention, on white, at a constant
+    /// learning rate.
+    const fn joint(dir: &'static str, seed: u64, ema_decay: Option<f64>) -> Self {
+        Self { dir, stage: Stage::CrossDomain, train_all: true, white: true, seed, ema_decay, cool_down: false }
+    }
+
+    /// A cool-down: a joint phase without EMA whose learning rate falls to 0.
+    const fn cool_down(dir: &'static str, seed: u64) -> Self {
+        Self { cool_down: true, ..Self::joint(dir, seed, None) }
+    }
+}
+
 /// Wonder3D++'s three stages on the dataset's three backgrounds, then joint phases: the
 /// whole UNet with the cross-domain attention (Wonder3D v1's joint training) on white, the
 /// only background inference uses — a model this small generates garbage from an input on a
 /// background other than the one its sample was trained on (docs/training.md). The second
 /// joint phase continues the first with fresh optimizer moments and an EMA of the weights;
 /// a cool-down starts from that average and brings the learning rate down to 0. A third, a
-/// fourth and a fifth joint phase, each with its cool-down, repeat the last two from the cooled model: the
-/// moving average alone scores no better than its start, the cool-down after it does
-/// (docs/training.md).
+/// fourth and a fifth joint phase, each with its cool-down, repeat the last two from the
+/// cooled model: the moving average alone scores no better than its start, the cool-down after
+/// it does (docs/training.md).
 const PHASES: [Phase; PHASE_COUNT] = [
-    Phase {
-        dir: "stage1",
-        stage: Stage::MultiDomain,
-        train_all: false,
-        white: false,
-        seed: 10,
-        ema_decay: None,
-        cool_down: false,
-    },
-    Phase {
-        dir: "stage2",
-        stage: Stage::MixedDomain,
-        train_all: false,
-        white: false,
-        seed: 11,
-        ema_decay: None,
-        cool_down: false,
-    },
-    Phase {
-        dir: "stage3",
-        stage: Stage::CrossDomain,
-        train_all: false,
-        white: false,
-        seed: 12,
-        ema_decay: None,
-        cool_down: false,
-    },
-    Phase {
-        dir: "joint",
-        stage: Stage::CrossDomain,
-        train_all: true,
-        white: true,
-        seed: 13,
-        ema_decay: None,
-        cool_down: false,
-    },
-    Phase {
-        dir: "joint2",
-        stage: Stage::CrossDomain,
-        train_all: true,
-        white: true,
-        seed: 1,
-        ema_decay: Some(0.999),
-        cool_down: false,
-    },
-    Phase {
-        dir: "cooldown",
-        stage: Stage::CrossDomain,
-        train_all: true,
-        white: true,
-        seed: 2,
-        ema_decay: None,
-        cool_down: true,
-    },
-    Phase {
-        dir: "joint3",
-        stage: Stage::CrossDomain,
-        train_all: true,
-        white: true,
-        seed: 3,
-        ema_decay: Some(0.999),
-        cool_down: false,
-    },
-    Phase {
-        dir: "cooldown2",
-        stage: Stage::CrossDomain,
-        train_all: true,
-        white: true,
-        seed: 4,
-        ema_decay: None,
-        cool_down: true,
-    },
-    Phase {
-        dir: "joint4",
-        stage: Stage::CrossDomain,
-        train_all: true,
-        white: true,
-        seed: 5,
-        ema_decay: Some(0.999),
-        cool_down: false,
-    },
-    Phase {
-        dir: "cooldown3",
-        stage: Stage::CrossDomain,
-        train_all: true,
-        white: true,
-        seed: 6,
-        ema_decay: None,
-        cool_down: true,
-    },
-    Phase {
-        dir: "joint5",
-        stage: Stage::CrossDomain,
-        train_all: true,
-        white: true,
-        seed: 7,
-        ema_decay: Some(0.999),
-        cool_down: false,
-    },
-    Phase {
-        dir: "cooldown4",
-        stage: Stage::CrossDomain,
-        train_all: true,
-        white: true,
-        seed: 8,
-        ema_decay: None,
-        cool_down: true,
-    },
+    Phase::stage("stage1", Stage::MultiDomain, 10),
+    Phase::stage("stage2", Stage::MixedDomain, 11),
+    Phase::stage("stage3", Stage::CrossDomain, 12),
+    Phase::joint("joint", 13, None),
+    Phase::joint("joint2", 1, Some(0.999)),
+    Phase::cool_down("cooldown", 2),
+    Phase::joint("joint3", 3, Some(0.999)),
+    Phase::cool_down("cooldown2", 4),
+    Phase::joint("joint4", 5, Some(0.999)),
+    Phase::cool_down("cooldown3", 6),
+    Phase::joint("joint5", 7, Some(0.999)),
+    Phase::cool_down("cooldown4", 8),
 ];
 
 /// The number of UNet phases ([`PHASES`]).
