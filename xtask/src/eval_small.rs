@@ -6,7 +6,7 @@
 //! truth inside the true masks (mean angular error, also without the silhouette's one-pixel
 //! rim, where an outline off by a pixel weighs most), the generated masks with the true ones
 //! (IoU), and the mesh reconstructed from the generated views with the posed object
-//! (Chamfer distance, both normalised into the unit cube). Writes
+//! (Chamfer distance, both normalised into the unit cube; the best of `GENERATED_VIEW_STARTS` fits, as `wonder3d run` keeps it). Writes
 //! `target/eval-small/eval.json` and the contact sheet `target/eval-small/small_model.png`
 //! (`--sheet docs/img/small_model.png` for the committed one): per object,
 //! the input, the generated views and the reconstructed mesh's normals from two cameras,
@@ -256,7 +256,9 @@ pub(crate) fn run(
         let ceiling = vae_round_trip(&pipeline, &truth, camera, &device)?;
         let name = stem(mesh_path).unwrap_or_default();
         views.save(out.join(&name)).map_err(err)?;
-        let recon = reconstruct(&views, &ReconOptions::preset(Preset::Default), &mut |_| {});
+        // As `wonder3d run` and `demo --from-image` reconstruct generated views.
+        let recon_options = ReconOptions::preset(Preset::Default).with_starts(wonder3d::GENERATED_VIEW_STARTS);
+        let recon = reconstruct(&views, &recon_options, &mut |_| {});
         let chamfer = match &recon {
             Ok((mesh, _)) => {
                 wonder3d::save_mesh(out.join(format!("{name}.obj")), mesh).map_err(err)?;

@@ -59,6 +59,9 @@
 //!   (`docs/training.md`); `cargo xtask tune-decoder --data DIR --out DIR [--model DIR]
 //!   [--steps N] [--lr LR]`: a small model's VAE decoder fine-tuned on its frozen encoder's
 //!   latents.
+//! - `cargo xtask recon-spread --views DIR|truth --objects spot,… [--seeds N] [--starts K]`:
+//!   the spread of one reconstruction's Chamfer distance over remesher seeds, on the views
+//!   `eval-small` saved (`docs/accuracy.md`, "Several starts").
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
@@ -71,6 +74,7 @@ mod eval_small;
 mod faces_chart;
 mod gpu;
 mod recon;
+mod recon_spread;
 mod refine_table;
 mod robust;
 mod train_small;
@@ -143,6 +147,27 @@ enum Task {
     },
     /// Put a trained model into assets/model-small with f16 weights (the model the
     /// repository ships; provenance in assets/model-small.md).
+    /// How far one reconstruction's Chamfer distance moves with the remesher's seed alone,
+    /// on saved views of the small model's objects (docs/accuracy.md, "Several starts").
+    ReconSpread {
+        /// Folder with one view-set folder per object (as eval-small's --out leaves them), or
+        /// `truth` for the true views of the same samples.
+        #[arg(long)]
+        views: PathBuf,
+        /// Objects, comma-separated (spot, bob_tri, boot, hammer, wingnut, plane,
+        /// koala_low_resolution, torus).
+        #[arg(long)]
+        objects: String,
+        /// Remesher seeds tried, 0..seeds.
+        #[arg(long, default_value_t = 8)]
+        seeds: u64,
+        /// Fits per reconstruction (ReconOptions::starts).
+        #[arg(long, default_value_t = 1)]
+        starts: usize,
+        /// The remesher's repairs on from the first coarse run (CoarseOptions::remesh_repairs).
+        #[arg(long)]
+        repairs: bool,
+    },
     ShipSmall {
         /// Model directory (f32, as train-small writes it).
         #[arg(long, default_value = "target/train-small/model")]
@@ -809,6 +834,9 @@ fn main() -> ExitCode {
                 draws: draws.unwrap_or(if independent_noise { 1 } else { demo.draws }),
             };
             eval_small::run(&model, &out, &sampling, objects.as_deref(), sheet.as_deref(), data.as_deref())
+        }
+        Task::ReconSpread { views, objects, seeds, starts, repairs } => {
+            recon_spread::run(&views, &objects, seeds, starts, repairs)
         }
         Task::ShipSmall { model } => train_small::ship(&model),
         Task::TuneDecoder { model, data, out, steps, lr } => {

@@ -18,6 +18,10 @@
 //! 4. [`polish`]: the coarse loss again on the vertices untangling moved, at fixed
 //!    topology, with every move that would make triangles cross undone.
 //!
+//! Stages 2–4 can run several times from the same start mesh with other remesher seeds
+//! ([`ReconOptions::starts`]), keeping the fit with the lowest final view loss: on views that
+//! disagree (generated ones) a single fit is a chaotic draw from a wide spread.
+//!
 //! [`refine_mesh`] is the refinement stage that follows: the same fit, from the finished
 //! mesh, against sharper views (Wonder3D++'s enhanced 512² views), with the same clean-up.
 //!

@@ -31,3 +31,11 @@ pub fn follow(bar: &ProgressBar) -> impl FnMut(Progress) + '_ {
         }
     }
 }
+
+/// ` (fit k of n kept)` when the reconstruction tried several fits (`--starts`), else nothing.
+pub fn starts_note(report: &wonder3d::recon::ReconReport) -> String {
+    match report.start_losses.len() {
+        0 | 1 => String::new(),
+        n => format!(" (fit {} of {n} kept, the best fit to the views)", report.start_kept + 1),
+    }
+}

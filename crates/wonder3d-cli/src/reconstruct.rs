@@ -21,6 +21,11 @@ pub struct ReconstructArgs {
     /// Speed/accuracy preset.
     #[arg(long, value_enum, default_value_t = PresetArg::Default)]
     preset: PresetArg,
+    /// Reconstructions tried, each with its own remesher seed; the one that fits the views
+    /// best is kept. 1 suits rendered views; views from `wonder3d generate` disagree with
+    /// each other and gain from 4 (docs/accuracy.md, "Several starts").
+    #[arg(long, default_value_t = 1, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=64))]
+    starts: usize,
     /// Also write the reconstruction report (stage timings, losses, face counts, init choice) as JSON.
     #[arg(long)]
     report: Option<PathBuf>,
@@ -46,6 +51,7 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
     let bar = progress::bar(args.quiet)?;
     let output = Pipeline::new()
         .with_preset(args.preset.into())
+        .with_starts(args.starts)
         .without_texture()
         .from_views(&views, &mut progress::follow(&bar))?;
     bar.finish_and_clear();
@@ -63,9 +69,10 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
     }
     let r = &output.report;
     println!(
-        "reconstructed {} triangles in {:.1} s (init: {}) -> {}",
+        "reconstructed {} triangles in {:.1} s{} (init: {}) -> {}",
         r.triangles,
         r.seconds.reconstruct,
+        crate::progress::starts_note(&r.reconstruction),
         r.reconstruction.init.reason,
         args.out.display()
     );

@@ -26,6 +26,11 @@ pub struct RunArgs {
     /// Reconstruction preset.
     #[arg(long, value_enum, default_value_t = PresetArg::Default)]
     preset: PresetArg,
+    /// Reconstructions tried from the generated views, each with its own remesher seed; the
+    /// one that fits the views best is kept (generated views disagree, so one fit is a
+    /// lottery: docs/accuracy.md, "Several starts").
+    #[arg(long, default_value_t = wonder3d::GENERATED_VIEW_STARTS, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=64))]
+    starts: usize,
     /// Side of the baked texture in texels.
     #[arg(long, default_value_t = TextureOptions::default().size, allow_hyphen_values = true, value_parser = crate::args::texture_size)]
     texture_size: u32,
@@ -62,6 +67,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
     bar.set_prefix("load");
     let pipeline = Pipeline::new()
         .with_preset(args.preset.into())
+        .with_generated_view_starts(args.starts)
         .with_texture_size(args.texture_size)
         .with_model(generate::load(&args.model.weights, &args.model.sampling, &wonder3d::SampleOptions::default())?);
     let output = pipeline.from_image(&rgba, &mut progress::follow(&bar))?;
@@ -89,7 +95,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
     }
     let r = &output.report;
     println!(
-        "{} -> {}: {} triangles (init: {}), {}×{} texture, {:.1} s generation, {:.1} s reconstruction",
+        "{} -> {}: {} triangles (init: {}), {}×{} texture, {:.1} s generation, {:.1} s reconstruction{}",
         args.image.display(),
         args.out.display(),
         r.triangles,
@@ -97,7 +103,8 @@ pub fn run(args: &RunArgs) -> Result<()> {
         args.texture_size,
         args.texture_size,
         r.seconds.generate,
-        r.seconds.reconstruct
+        r.seconds.reconstruct,
+        crate::progress::starts_note(&r.reconstruction)
     );
     Ok(())
 }

@@ -56,8 +56,8 @@ pub mod sheet;
 pub use generate::{Generated, Generator};
 pub use input::{check_png_output, prepare_image};
 pub use pipeline::{
-    GenerationReport, Output, Pipeline, Progress, Report, Seconds, Stage, TextureStage, check_mesh_output,
-    check_out_dir, check_out_folder, check_outputs, check_parent, mesh_output_files,
+    GENERATED_VIEW_STARTS, GenerationReport, Output, Pipeline, Progress, Report, Seconds, Stage, TextureStage,
+    check_mesh_output, check_out_dir, check_out_folder, check_outputs, check_parent, mesh_output_files,
 };
 /// Meshes, cameras, view rigs, images, view sets and file IO (the `w3d-core` crate).
 pub use w3d_core as core;

@@ -73,3 +73,39 @@ fn a_wrong_view_ends_without_crossings() {
     assert_eq!(report.untangle.after, 0, "{:?}", report.untangle);
     assert!(mesh.self_intersections().is_empty());
 }
+
+/// Several starts: each is the fit one start with its seed would give, the one that fits the
+/// views best is returned, and 0 starts is refused. Views that disagree (spot with the
+/// fandisk's `front_right` view) spread the fits, as generated views do.
+#[test]
+fn several_starts_keep_the_best_fit() {
+    let rig = ViewRig::wonder3d_ortho();
+    let views = w3d_raster::render_oracle_views(&spot(), &rig, 64).unwrap();
+    let other = w3d_raster::render_oracle_views(&shared_mesh("fandisk.obj"), &rig, 64).unwrap();
+    let (rig, mut images) = views.into_parts();
+    images[1] = other.views()[1].clone();
+    let views = ViewSet::new(rig, images).unwrap();
+    let fast = ReconOptions::preset(Preset::Fast).with_coarse_steps(30).with_seed(5);
+
+    let error = reconstruct(&views, &fast.with_starts(0), &mut |_| {}).unwrap_err().to_string();
+    assert!(error.contains("starts"), "{error}");
+
+    let (mesh, report) = reconstruct(&views, &fast.with_starts(3), &mut |_| {}).unwrap();
+    assert_eq!(report.start_losses.len(), 3);
+    eprintln!("losses {:?}, kept {}", report.start_losses, report.start_kept);
+    assert!(report.start_losses.iter().any(|&l| l != report.start_losses[0]), "the seeds changed nothing");
+    let best = report.start_losses.iter().cloned().fold(f32::INFINITY, f32::min);
+    assert_eq!(report.untangle.after, 0);
+    assert_eq!(report.start_losses[report.start_kept], best);
+    assert_eq!(report.polish.loss_after, best);
+    // Start k is the single fit with the remesher seed 5 + 4k (seeds spaced past the reruns).
+    for k in [0, report.start_kept] {
+        let single = fast.with_seed(5 + 4 * k as u64);
+        let (alone, alone_report) = reconstruct(&views, &single, &mut |_| {}).unwrap();
+        assert_eq!(alone_report.start_losses, vec![report.start_losses[k]], "start {k}");
+        if k == report.start_kept {
+            assert_eq!(alone.positions(), mesh.positions());
+            assert_eq!(alone.triangles(), mesh.triangles());
+        }
+    }
+}
