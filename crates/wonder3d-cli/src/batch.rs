@@ -43,6 +43,10 @@ pub struct BatchArgs {
     /// Texture side in texels of items that name none.
     #[arg(long, default_value_t = TextureOptions::default().size, allow_hyphen_values = true, value_parser = crate::args::texture_size)]
     texture_size: u32,
+    /// Image items: reconstructions tried from the generated views, each with its own remesher
+    /// seed; the one that fits the views best is kept (docs/accuracy.md, "Several starts").
+    #[arg(long, default_value_t = wonder3d::GENERATED_VIEW_STARTS, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=64))]
+    starts: usize,
     /// Write untextured meshes (geometry only; faster).
     #[arg(long)]
     no_texture: bool,
@@ -85,7 +89,8 @@ pub fn run(args: &BatchArgs) -> Result<()> {
         .with_keep_views(args.keep_views)
         .with_preset(args.preset.into())
         .with_texture_size(args.texture_size)
-        .with_texture(!args.no_texture);
+        .with_texture(!args.no_texture)
+        .with_generated_view_starts(args.starts);
     let manifest = Manifest::read(&args.manifest)?;
     // Everything checkable is checked before the weights load.
     let mine = Batch::check(&options, &manifest, args.weights.is_some())?;

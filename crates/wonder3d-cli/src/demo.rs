@@ -35,6 +35,10 @@ pub struct DemoArgs {
     /// `assets/model-small` of the repository; docs/training.md).
     #[arg(long, requires = "from_image")]
     weights: Option<PathBuf>,
+    /// With --from-image: reconstructions tried from the generated views, each with its own remesher
+    /// seed; the one that fits the views best is kept (docs/accuracy.md, "Several starts").
+    #[arg(long, default_value_t = wonder3d::GENERATED_VIEW_STARTS, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=64))]
+    starts: usize,
     #[command(flatten)]
     sampling: crate::generate::SamplingArgs,
     /// No progress bars.
@@ -66,7 +70,8 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     let options = DemoOptions::default()
         .with_preset(args.preset.into())
         .with_view_size(args.size)
-        .with_texture_size(args.texture_size);
+        .with_texture_size(args.texture_size)
+        .with_generated_view_starts(args.starts);
     let demo = if args.from_image {
         from_image(args, &options)?
     } else {

@@ -430,6 +430,10 @@ pub struct BatchOptions {
     pub texture_size: u32,
     /// Texture the meshes (else `mesh.glb` is the closed untextured mesh).
     pub texture: bool,
+    /// Fits tried on the generated views of image items, the best kept (default
+    /// [`crate::GENERATED_VIEW_STARTS`]; [`Pipeline::with_generated_view_starts`]). View
+    /// items get their preset's one.
+    pub generated_view_starts: usize,
 }
 
 impl BatchOptions {
@@ -446,6 +450,7 @@ impl BatchOptions {
             preset: Preset::Default,
             texture_size: w3d_texture::TextureOptions::default().size,
             texture: true,
+            generated_view_starts: crate::GENERATED_VIEW_STARTS,
         }
     }
 
@@ -494,6 +499,12 @@ impl BatchOptions {
     /// Default texture size.
     pub fn with_texture_size(mut self, size: u32) -> Self {
         self.texture_size = size;
+        self
+    }
+
+    /// Fits tried on the generated views of image items.
+    pub fn with_generated_view_starts(mut self, starts: usize) -> Self {
+        self.generated_view_starts = starts;
         self
     }
 
@@ -671,6 +682,9 @@ impl Batch {
     pub fn check<'m>(options: &BatchOptions, manifest: &'m Manifest, with_model: bool) -> Result<Vec<&'m Item>> {
         if options.jobs == 0 {
             return Err(Error::invalid("jobs", "at least 1 item at a time"));
+        }
+        if options.generated_view_starts == 0 {
+            return Err(Error::invalid("generated_view_starts", "at least 1 fit of the generated views (got 0)"));
         }
         w3d_texture::TextureOptions::default().with_size(options.texture_size).validate()?;
         check_out_folder(&options.out)?;
@@ -851,7 +865,9 @@ impl Batch {
     /// The work of one item: views (loaded or generated) → mesh → texture → its folder.
     fn process(&self, item: &Item, folder: &Path, progress: &mut dyn FnMut(Progress)) -> Result<Report> {
         let o = &item.options;
-        let pipeline = Pipeline::new().with_preset(o.preset.unwrap_or(self.options.preset));
+        let pipeline = Pipeline::new()
+            .with_preset(o.preset.unwrap_or(self.options.preset))
+            .with_generated_view_starts(self.options.generated_view_starts);
         let pipeline = match self.options.texture {
             true => pipeline.with_texture_size(o.texture_size.unwrap_or(self.options.texture_size)),
             false => pipeline.without_texture(),

@@ -41,11 +41,19 @@ pub struct DemoOptions {
     pub view_size: u32,
     /// Side of the baked texture in texels (default 1024).
     pub texture_size: u32,
+    /// Fits tried on the generated views of [`run_demo_from_image`], the best kept (default
+    /// [`crate::GENERATED_VIEW_STARTS`]; [`crate::Pipeline::with_generated_view_starts`]).
+    pub generated_view_starts: usize,
 }
 
 impl Default for DemoOptions {
     fn default() -> Self {
-        DemoOptions { preset: Preset::Default, view_size: 256, texture_size: 1024 }
+        DemoOptions {
+            preset: Preset::Default,
+            view_size: 256,
+            texture_size: 1024,
+            generated_view_starts: crate::GENERATED_VIEW_STARTS,
+        }
     }
 }
 
@@ -65,6 +73,12 @@ impl DemoOptions {
     /// With another texture size.
     pub fn with_texture_size(mut self, size: u32) -> Self {
         self.texture_size = size;
+        self
+    }
+
+    /// With another number of fits on the generated views.
+    pub fn with_generated_view_starts(mut self, starts: usize) -> Self {
+        self.generated_view_starts = starts;
         self
     }
 }
@@ -297,14 +311,20 @@ pub fn run_demo_from_image(
     progress: &mut dyn FnMut(Progress),
 ) -> Result<Demo> {
     let start = Instant::now();
+    if options.generated_view_starts == 0 {
+        return Err(Error::invalid("generated_view_starts", "at least 1 fit of the generated views (got 0)"));
+    }
     progress(Progress::new(Stage::Render, 0, 1, None));
     let subject = photo_subject()?;
     let photo = spot_photo(&subject, options.view_size)?;
     let render_seconds = start.elapsed().as_secs_f64();
     progress(Progress::new(Stage::Render, 1, 1, None));
 
-    let pipeline =
-        Pipeline::new().with_preset(options.preset).with_texture_size(options.texture_size).with_model(generator);
+    let pipeline = Pipeline::new()
+        .with_preset(options.preset)
+        .with_generated_view_starts(options.generated_view_starts)
+        .with_texture_size(options.texture_size)
+        .with_model(generator);
     let output = pipeline.from_image(&photo, progress)?;
 
     progress(Progress::new(Stage::Evaluate, 0, 1, None));

@@ -102,12 +102,15 @@ fn images_share_one_model_and_take_their_own_seed() {
         "--keep-views",
         "--jobs",
         "2",
+        "--starts",
+        "1",
         "--quiet",
     ]);
     assert!(run.status.success(), "{}", text(&run.stderr));
     for (id, seed) in [("disc", 42), ("disc-7", 7)] {
         let report: serde_json::Value = common::read_json(&out.join(id).join("report.json"));
         assert_eq!(report["generation"]["seed"], seed);
+        assert_eq!(report["reconstruction"]["start_losses"].as_array().map(Vec::len), Some(1), "--starts 1");
         assert_eq!(report["generation"]["steps"], 2);
         assert!(out.join(id).join("views/cameras.json").is_file());
         assert!(out.join(id).join("views/input.png").is_file());

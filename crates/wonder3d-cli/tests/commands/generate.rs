@@ -62,6 +62,9 @@ fn run_chains_generate_reconstruct_and_texture() {
         "fast",
         "--texture-size",
         "512",
+        // Noise views: one fit is enough to test the chain (the default is 4).
+        "--starts",
+        "1",
         "--quiet",
     ]);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
@@ -163,10 +166,15 @@ fn demo_from_image_goes_from_a_photo_to_a_scored_mesh() {
         "128",
         "--texture-size",
         "256",
+        // The default is 4 fits; one is enough on the tiny model's noise views.
+        "--starts",
+        "1",
         "--quiet",
     ]);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     let report: serde_json::Value = common::read_json(&out.join("report.json"));
+    let losses = report["pipeline"]["reconstruction"]["start_losses"].as_array().unwrap();
+    assert_eq!(losses.len(), 1, "--starts 1 reconstructs once");
     // The tiny checkpoint's views are noise: the report is checked for its content, not scores.
     let agreement = &report["generated_views"];
     let angle = agreement["normal_angle_deg"].as_f64().unwrap();

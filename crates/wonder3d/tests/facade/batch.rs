@@ -81,6 +81,10 @@ fn a_failing_item_is_recorded_and_resume_reruns_only_what_is_not_done() {
     // Without --resume, earlier results are refused before any work.
     let err = Batch::new(options(out.clone())).run(&manifest, &|_| {}).unwrap_err().to_string();
     assert!(err.contains("--resume"), "{err}");
+    // So are 0 fits of generated views, whatever the items are.
+    let zero = options(out.clone()).with_resume(true).with_generated_view_starts(0);
+    let err = Batch::new(zero).run(&manifest, &|_| {}).unwrap_err().to_string();
+    assert!(err.contains("generated_view_starts"), "{err}");
 
     // Repair bob, damage spot's finished mesh: resume reruns both, skips nothing valid.
     std::fs::write(&normal, &bytes).unwrap();
