@@ -91,6 +91,39 @@ fn condition_use(pipeline: &MultiViewPipeline, data: &Path) -> Result<Vec<serde_
     Ok(rows)
 }
 
+/// The object name of a mesh path (its file stem: `spot`, `bob_tri`, …).
+pub(crate) fn object_name(mesh_path: &str) -> String {
+    Path::new(mesh_path).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default()
+}
+
+/// The mesh paths (from the workspace root) of the objects `objects` names, comma-separated;
+/// without a list, every training object, then the held-out one.
+pub(crate) fn pick_objects(objects: Option<&str>) -> Result<Vec<&'static str>, String> {
+    let all: Vec<&'static str> = TRAIN_MESHES.iter().copied().chain([HELD_OUT_MESH]).collect();
+    let Some(list) = objects else { return Ok(all) };
+    list.split(',')
+        .map(|name| {
+            all.iter().copied().find(|m| object_name(m) == name.trim()).ok_or_else(|| {
+                let names: Vec<String> = all.iter().map(|m| object_name(m)).collect();
+                format!("--objects: no object {:?} (one of {})", name.trim(), names.join(", "))
+            })
+        })
+        .collect()
+}
+
+/// The sample an object is scored on (seed 0, sample 0 at `size`: a training sample for the
+/// training objects), as a one-sample dataset, and the object as that sample poses it, in the
+/// unit cube as a prediction is compared with it.
+pub(crate) fn scored_sample(path: &Path, size: u32) -> Result<(Dataset, Mesh), String> {
+    let options = DatasetOptions::default().with_samples(1).with_size(size).with_seed(0);
+    let dataset = Dataset::prepare(&[path], &options).map_err(err)?;
+    // The draw of this sample (seed 0, index 0), as the dataset made it.
+    let draw = sample_draw(0, &id_stem(path), 0, None);
+    let mut posed = dataset.objects()[0].posed(&draw).map_err(err)?;
+    posed.normalize_unit_cube();
+    Ok((dataset, posed))
+}
+
 /// How `eval-small` samples (the command's flags).
 pub(crate) struct Sampling {
     pub sampler: String,
@@ -175,22 +208,8 @@ pub(crate) fn run(
         return Err("--independent-noise draws once (--draws 1)".into());
     }
     let root = crate::workspace_root();
-    // Every training object, then the held-out one; or those `objects` names, checked before
-    // the model loads.
-    let stem = |mesh_path: &str| Path::new(mesh_path).file_stem().map(|s| s.to_string_lossy().into_owned());
-    let all: Vec<&str> = TRAIN_MESHES.iter().copied().chain([HELD_OUT_MESH]).collect();
-    let picks: Vec<&str> = match objects {
-        None => all,
-        Some(list) => list
-            .split(',')
-            .map(|name| {
-                all.iter().copied().find(|m| stem(m).as_deref() == Some(name.trim())).ok_or_else(|| {
-                    let names: Vec<String> = all.iter().filter_map(|m| stem(m)).collect();
-                    format!("--objects: no object {:?} (one of {})", name.trim(), names.join(", "))
-                })
-            })
-            .collect::<Result<_, _>>()?,
-    };
+    // Checked before the model loads.
+    let picks = pick_objects(objects)?;
     let picture = sheet_path.map_or_else(|| out.join("small_model.png"), |p| root.join(p));
     // The explicit sheet's folder is checked before minutes of generation, not after.
     if let Some(parent) = sheet_path.and(picture.parent()).filter(|p| !p.is_dir()) {
@@ -210,16 +229,9 @@ pub(crate) fn run(
     let mut records = Vec::new();
     for mesh_path in picks {
         let held_out = mesh_path == HELD_OUT_MESH;
-        let path = root.join(mesh_path);
-        let options = DatasetOptions::default().with_samples(1).with_size(size).with_seed(0);
-        let dataset = Dataset::prepare(&[&path], &options).map_err(err)?;
+        let (dataset, posed) = scored_sample(&root.join(mesh_path), size)?;
         let sample = dataset.samples().next().cloned().ok_or("no sample")?;
         let truth = dataset.render_sample(0).map_err(err)?;
-        // The draw of this sample (seed 0, index 0), as the dataset made it.
-        let draw = sample_draw(0, &id_stem(&path), 0, None);
-        // The object as rendered, then into the unit cube as the prediction is.
-        let mut posed = dataset.objects()[0].posed(&draw).map_err(err)?;
-        posed.normalize_unit_cube();
         let front = &truth.views()[0];
         let colour = front.colour.as_ref().ok_or("no colour view")?;
         let rgba: Vec<f32> =
@@ -254,7 +266,7 @@ pub(crate) fn run(
         let agreement = wonder3d::eval::view_agreement(&truth, &views).map_err(err)?;
         let (angle, iou) = (agreement.normal_angle_deg, agreement.mask_iou);
         let ceiling = vae_round_trip(&pipeline, &truth, camera, &device)?;
-        let name = stem(mesh_path).unwrap_or_default();
+        let name = object_name(mesh_path);
         views.save(out.join(&name)).map_err(err)?;
         // As `wonder3d run` and `demo --from-image` reconstruct generated views.
         let recon_options = ReconOptions::preset(Preset::Default).with_starts(wonder3d::GENERATED_VIEW_STARTS);

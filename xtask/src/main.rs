@@ -59,7 +59,7 @@
 //!   (`docs/training.md`); `cargo xtask tune-decoder --data DIR --out DIR [--model DIR]
 //!   [--steps N] [--lr LR]`: a small model's VAE decoder fine-tuned on its frozen encoder's
 //!   latents.
-//! - `cargo xtask recon-spread --views DIR|truth --objects spot,… [--seeds N] [--starts K]`:
+//! - `cargo xtask recon-spread --views DIR|truth --objects spot,… [--seeds N] [--starts K] [--repairs]`:
 //!   the spread of one reconstruction's Chamfer distance over remesher seeds, on the views
 //!   `eval-small` saved (`docs/accuracy.md`, "Several starts").
 

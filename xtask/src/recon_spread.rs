@@ -1,20 +1,20 @@
-//! `cargo xtask recon-spread --views DIR --objects spot,plane [--seeds 8] [--starts 1]`: how
+//! `cargo xtask recon-spread --views DIR --objects spot,plane [--seeds 8] [--starts 1] [--repairs]`: how
 //! far one reconstruction's Chamfer distance moves with the remesher's seed alone
 //! (`docs/accuracy.md`, "Several starts"). For each object of the small model's set, the
 //! views in `DIR/<object>` (as `cargo xtask eval-small` saves its generated ones; `--views
 //! truth` renders the true views of the same sample instead) are reconstructed with the
-//! default preset at seeds `0..seeds`, each with `--starts` fits, and every result is scored
+//! default preset at seeds `0..seeds`, each with `--starts` fits (`--repairs`: the remesher's
+//! repairs on from the first step), and every result is scored
 //! against the posed object as `eval-small` scores it. Prints one line per seed (CD, final
 //! view loss, crossings untangled, triangles) and the spread.
 
 use std::path::Path;
 
 use wonder3d::ViewSet;
-use wonder3d::dataset::{Dataset, DatasetOptions, id_stem, sample_draw};
 use wonder3d::eval::{EvalOptions, evaluate};
 use wonder3d::recon::{Preset, ReconOptions, reconstruct};
 
-use crate::train_small::{HELD_OUT_MESH, TRAIN_MESHES};
+use crate::eval_small::{object_name, pick_objects, scored_sample};
 
 fn err(e: impl std::fmt::Display) -> String {
     e.to_string()
@@ -25,32 +25,21 @@ const TRUTH_SIZE: u32 = 64;
 
 /// Runs `recon-spread` (see the module docs).
 pub(crate) fn run(views_root: &Path, objects: &str, seeds: u64, starts: usize, repairs: bool) -> Result<(), String> {
-    if seeds == 0 || starts == 0 {
-        return Err(format!("--seeds and --starts: at least 1 (got {seeds} and {starts})"));
+    // (0 starts: `reconstruct` refuses them before any work.)
+    if seeds == 0 {
+        return Err("--seeds: at least 1".into());
     }
     let root = crate::workspace_root();
     let truth = views_root.as_os_str() == "truth";
-    let all: Vec<&str> = TRAIN_MESHES.iter().copied().chain([HELD_OUT_MESH]).collect();
-    let stem = |m: &str| Path::new(m).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    for name in objects.split(',').map(str::trim) {
-        let mesh_path = all.iter().copied().find(|&m| stem(m) == name).ok_or_else(|| {
-            format!(
-                "--objects: no object {name:?} (one of {})",
-                all.iter().map(|m| stem(m)).collect::<Vec<_>>().join(", ")
-            )
-        })?;
-        let path = root.join(mesh_path);
-        let views = if truth { None } else { Some(ViewSet::load(views_root.join(name)).map_err(err)?) };
+    for mesh_path in pick_objects(Some(objects))? {
+        let name = object_name(mesh_path);
+        let views = if truth { None } else { Some(ViewSet::load(views_root.join(&name)).map_err(err)?) };
         let size = views.as_ref().map_or(TRUTH_SIZE, |v| v.views()[0].mask.width());
-        // The sample eval-small generates from (seed 0, sample 0) and its posed object.
-        let options = DatasetOptions::default().with_samples(1).with_size(size).with_seed(0);
-        let dataset = Dataset::prepare(&[&path], &options).map_err(err)?;
+        let (dataset, posed) = scored_sample(&root.join(mesh_path), size)?;
         let views = match views {
             Some(views) => views,
             None => dataset.render_sample(0).map_err(err)?,
         };
-        let mut posed = dataset.objects()[0].posed(&sample_draw(0, &id_stem(&path), 0, None)).map_err(err)?;
-        posed.normalize_unit_cube();
         let mut cds = Vec::new();
         for seed in 0..seeds {
             let mut options = ReconOptions::preset(Preset::Default).with_seed(seed).with_starts(starts);

@@ -285,15 +285,16 @@ pub fn reconstruct(
     let (init, init_report, alternative) = start_meshes(views, &options.init, true)?;
     progress(Progress { stage: Stage::Init, done: 1, total: 1, loss: None });
     let (mut kept, mut start_losses, mut start_kept) = (None::<Fit>, Vec::with_capacity(options.starts), 0);
-    let mut seconds = [0.0; 3];
+    // Seconds of the coarse, untangle and polish stages over all starts.
+    let (mut coarse_seconds, mut untangle_seconds, mut polish_seconds) = (0.0, 0.0, 0.0);
     for k in 0..options.starts {
         // Seeds far enough apart that no start repeats another's reruns.
         let seed = options.coarse.seed.wrapping_add((k * (COARSE_RESEEDS + 1)) as u64);
         let fit = fit_views(views, &init, alternative.as_ref(), init_report.clone(), options, seed, progress)?;
         start_losses.push(fit.polish.loss_after);
-        for (total, s) in seconds.iter_mut().zip([fit.coarse.seconds, fit.untangle_seconds, fit.polish.seconds]) {
-            *total += s;
-        }
+        coarse_seconds += fit.coarse.seconds;
+        untangle_seconds += fit.untangle_seconds;
+        polish_seconds += fit.polish.seconds;
         let better = kept.as_ref().is_none_or(|best| {
             (fit.untangle.after, fit.polish.loss_after) < (best.untangle.after, best.polish.loss_after)
         });
@@ -305,9 +306,9 @@ pub fn reconstruct(
     let fit = kept.expect("at least one start");
     let stages = vec![
         StageTiming { stage: Stage::Init, seconds: fit.init.seconds },
-        StageTiming { stage: Stage::Coarse, seconds: seconds[0] },
-        StageTiming { stage: Stage::Untangle, seconds: seconds[1] },
-        StageTiming { stage: Stage::Polish, seconds: seconds[2] },
+        StageTiming { stage: Stage::Coarse, seconds: coarse_seconds },
+        StageTiming { stage: Stage::Untangle, seconds: untangle_seconds },
+        StageTiming { stage: Stage::Polish, seconds: polish_seconds },
     ];
     let report = ReconReport {
         init: fit.init,

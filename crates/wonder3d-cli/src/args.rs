@@ -211,6 +211,11 @@ pub fn draws(s: &str) -> Result<usize, String> {
     whole_in(s, 1, 64, " draws")
 }
 
+/// `--starts`: reconstructions tried, the best fit to the views kept; a whole number from 1 to 64.
+pub fn starts(s: &str) -> Result<usize, String> {
+    whole_in(s, 1, 64, " fits")
+}
+
 /// Classifier-free guidance scale: finite, 0 to 100 (1 = no unconditional branch).
 pub fn guidance(s: &str) -> Result<f64, String> {
     finite_in(s, 0.0, 100.0, "a guidance scale")

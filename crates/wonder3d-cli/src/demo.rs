@@ -37,7 +37,7 @@ pub struct DemoArgs {
     weights: Option<PathBuf>,
     /// With --from-image: reconstructions tried from the generated views, each with its own remesher
     /// seed; the one that fits the views best is kept (docs/accuracy.md, "Several starts").
-    #[arg(long, default_value_t = wonder3d::GENERATED_VIEW_STARTS, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=64))]
+    #[arg(long, default_value_t = wonder3d::GENERATED_VIEW_STARTS, allow_hyphen_values = true, value_parser = crate::args::starts)]
     starts: usize,
     #[command(flatten)]
     sampling: crate::generate::SamplingArgs,

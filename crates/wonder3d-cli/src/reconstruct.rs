@@ -24,7 +24,7 @@ pub struct ReconstructArgs {
     /// Reconstructions tried, each with its own remesher seed; the one that fits the views
     /// best is kept. 1 suits rendered views; views from `wonder3d generate` disagree with
     /// each other and gain from 4 (docs/accuracy.md, "Several starts").
-    #[arg(long, default_value_t = 1, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=64))]
+    #[arg(long, default_value_t = 1, allow_hyphen_values = true, value_parser = crate::args::starts)]
     starts: usize,
     /// Also write the reconstruction report (stage timings, losses, face counts, init choice) as JSON.
     #[arg(long)]

@@ -29,7 +29,7 @@ pub struct RunArgs {
     /// Reconstructions tried from the generated views, each with its own remesher seed; the
     /// one that fits the views best is kept (generated views disagree, so one fit is a
     /// lottery: docs/accuracy.md, "Several starts").
-    #[arg(long, default_value_t = wonder3d::GENERATED_VIEW_STARTS, value_parser = clap::builder::RangedU64ValueParser::<usize>::new().range(1..=64))]
+    #[arg(long, default_value_t = wonder3d::GENERATED_VIEW_STARTS, allow_hyphen_values = true, value_parser = crate::args::starts)]
     starts: usize,
     /// Side of the baked texture in texels.
     #[arg(long, default_value_t = TextureOptions::default().size, allow_hyphen_values = true, value_parser = crate::args::texture_size)]

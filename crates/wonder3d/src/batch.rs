@@ -683,9 +683,7 @@ impl Batch {
         if options.jobs == 0 {
             return Err(Error::invalid("jobs", "at least 1 item at a time"));
         }
-        if options.generated_view_starts == 0 {
-            return Err(Error::invalid("generated_view_starts", "at least 1 fit of the generated views (got 0)"));
-        }
+        crate::pipeline::check_generated_view_starts(options.generated_view_starts)?;
         w3d_texture::TextureOptions::default().with_size(options.texture_size).validate()?;
         check_out_folder(&options.out)?;
         let mine: Vec<&Item> =

@@ -311,9 +311,7 @@ pub fn run_demo_from_image(
     progress: &mut dyn FnMut(Progress),
 ) -> Result<Demo> {
     let start = Instant::now();
-    if options.generated_view_starts == 0 {
-        return Err(Error::invalid("generated_view_starts", "at least 1 fit of the generated views (got 0)"));
-    }
+    crate::pipeline::check_generated_view_starts(options.generated_view_starts)?;
     progress(Progress::new(Stage::Render, 0, 1, None));
     let subject = photo_subject()?;
     let photo = spot_photo(&subject, options.view_size)?;

@@ -294,6 +294,15 @@ pub fn check_outputs(mesh: &Path, report: Option<&Path>, views: Option<&Path>) -
 /// the views.
 pub const GENERATED_VIEW_STARTS: usize = 4;
 
+/// Refuses 0 fits of generated views before any long work: [`w3d_recon::reconstruct`] refuses
+/// it too, but only once the views are generated.
+pub(crate) fn check_generated_view_starts(starts: usize) -> Result<()> {
+    if starts == 0 {
+        return Err(Error::invalid("generated_view_starts", "at least 1 fit of the generated views (got 0)"));
+    }
+    Ok(())
+}
+
 /// The whole extraction as one configurable object: views → closed mesh (`w3d-recon`) →
 /// textured mesh (`w3d-texture`), and, with a model ([`Pipeline::with_model`], feature
 /// `diffusion`), image → views first.

@@ -96,6 +96,7 @@ fn numeric_options_accept_their_range_and_refuse_the_rest() {
             "--size" => vec!["render", m, "--out", &out],
             "--steps" | "--guidance" | "--eta" | "--draws" => vec!["generate", m, "--weights", m, "--out", &out],
             "--min-snr-gamma" => vec!["train", "--stage", "2", "--data", m, "--init", m, "--out", &out],
+            "--starts" => vec!["reconstruct", m, "--out", &glb],
             _ => vec!["texture", m, m, "--out", &glb],
         }
     };
@@ -109,6 +110,7 @@ fn numeric_options_accept_their_range_and_refuse_the_rest() {
         ("--guidance", "1e1"),
         ("--eta", "0"),
         ("--draws", "64"),
+        ("--starts", "64"),
         ("--min-snr-gamma", "5"),
         ("--min-snr-gamma", "none"),
         ("--padding", "0"),
@@ -122,7 +124,7 @@ fn numeric_options_accept_their_range_and_refuse_the_rest() {
         assert_eq!(run.status.code(), Some(1), "{args:?}: {err}");
         assert!(err.contains("missing.obj"), "{args:?}: {err}");
     }
-    let refused: [(&str, &[&str], &str); 11] = [
+    let refused: [(&str, &[&str], &str); 12] = [
         ("--seed", &["-1", "18446744073709551616", "1.5", "", "x"], "from 0 to 18446744073709551615"),
         ("--size", &["16384", "0", "-3"], "from 1 to 4096 pixels"),
         ("--samples", &["100000000000", "0"], "from 1 to 10000000 surface samples"),
@@ -130,6 +132,7 @@ fn numeric_options_accept_their_range_and_refuse_the_rest() {
         ("--guidance", &["NaN", "nan", "inf", "-inf", "-1", "1e30", "two"], "a guidance scale from 0 to 100"),
         ("--eta", &["1.5", "NaN"], "an eta from 0 to 1"),
         ("--draws", &["0", "65", "-1", "2.5"], "from 1 to 64 draws"),
+        ("--starts", &["0", "65", "-1", "2.5"], "from 1 to 64 fits"),
         ("--min-snr-gamma", &["0", "-1", "NaN", "inf", "five"], "a Min-SNR gamma"),
         ("--exponent", &["inf", "-2"], "an exponent from 0 to 64"),
         ("--padding", &["-1", "1025"], "from 0 to 1024 texels"),
