@@ -145,8 +145,6 @@ enum Task {
         #[arg(long, default_value_t = 3e-4)]
         lr: f64,
     },
-    /// Put a trained model into assets/model-small with f16 weights (the model the
-    /// repository ships; provenance in assets/model-small.md).
     /// How far one reconstruction's Chamfer distance moves with the remesher's seed alone,
     /// on saved views of the small model's objects (docs/accuracy.md, "Several starts").
     ReconSpread {
@@ -168,6 +166,8 @@ enum Task {
         #[arg(long)]
         repairs: bool,
     },
+    /// Put a trained model into assets/model-small with f16 weights (the model the
+    /// repository ships; provenance in assets/model-small.md).
     ShipSmall {
         /// Model directory (f32, as train-small writes it).
         #[arg(long, default_value = "target/train-small/model")]

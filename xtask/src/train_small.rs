@@ -12,9 +12,9 @@ use std::time::Instant;
 use wonder3d::dataset::{Dataset, DatasetOptions};
 use wonder3d::diffusion::train::{
     CHECKPOINT_DIR, EMA_DIR, LrSchedule, RunEvent, RunOptions, STATE_FILE, Stage, TrainOptions, VaeTrainOptions,
-    run_training, train_vae,
+    run_training_encoded, train_vae,
 };
-use wonder3d::diffusion::training_set::{Background, TrainingSet};
+use wonder3d::diffusion::training_set::{Background, EncodedSet, TrainingSet};
 use wonder3d::diffusion::{
     ClipVision, ClipVisionConfig, MultiViewPipeline, SchedulerConfig, UNet, UNetConfig, Vae, VaeConfig,
 };
@@ -355,7 +355,10 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[u
         )
     };
 
-    // 5. The three stages, the joint phases and the cool-downs.
+    // 5. The three stages, the joint phases and the cool-downs. The set is encoded once per
+    // background (the stages' own, the joint phases' white) and shared by the phases on it:
+    // training changes only the UNet, so each phase would encode it identically.
+    let mut encodings: [Option<EncodedSet>; 2] = [None, None];
     for (i, phase) in PHASES.iter().enumerate() {
         decoder = decoder.poll()?;
         let stage = phase.stage;
@@ -412,7 +415,21 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[u
                 LrSchedule::Constant
             })
             .with_seed(phase.seed);
-        let set = set.clone().with_background(phase.white.then_some(Background::White));
+        let encoded = match &mut encodings[usize::from(phase.white)] {
+            Some(encoded) => encoded,
+            slot => {
+                let set = set.clone().with_background(phase.white.then_some(Background::White));
+                let t = Instant::now();
+                let encoded = slot.insert(EncodedSet::encode(&pipeline, &set, &device, &mut |_, _| {}).map_err(err)?);
+                eprintln!(
+                    "[{:6.0}s] training set encoded{} in {:.0} s",
+                    started.elapsed().as_secs_f64(),
+                    if phase.white { " on white" } else { "" },
+                    t.elapsed().as_secs_f64()
+                );
+                encoded
+            }
+        };
         let run = RunOptions::default()
             .with_steps(steps)
             .with_objects_per_batch(schedule.objects_per_batch)
@@ -423,22 +440,31 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[u
         let t = Instant::now();
         let first = reached.unwrap_or(0);
         let mut clock_error = None;
-        pipeline = run_training(pipeline, &set, options, &run, &stage_dir, resume_stage, &mut |event| match event {
-            RunEvent::Step(log) if log.step % 50 == 0 || log.step == steps => eprintln!(
-                "  {} step {}/{steps}: loss {:.4} ({:.2} s/step)",
-                phase.dir,
-                log.step,
-                log.loss,
-                t.elapsed().as_secs_f64() / (log.step - first).max(1) as f64
-            ),
-            RunEvent::Checkpoint { .. } => {
-                if let Err(e) = clock.save() {
-                    clock_error.get_or_insert(e);
-                }
-            }
-            _ => {}
-        })
-        .map_err(err)?;
+        pipeline =
+            run_training_encoded(
+                pipeline,
+                encoded,
+                options,
+                &run,
+                &stage_dir,
+                resume_stage,
+                &mut |event| match event {
+                    RunEvent::Step(log) if log.step % 50 == 0 || log.step == steps => eprintln!(
+                        "  {} step {}/{steps}: loss {:.4} ({:.2} s/step)",
+                        phase.dir,
+                        log.step,
+                        log.loss,
+                        t.elapsed().as_secs_f64() / (log.step - first).max(1) as f64
+                    ),
+                    RunEvent::Checkpoint { .. } => {
+                        if let Err(e) = clock.save() {
+                            clock_error.get_or_insert(e);
+                        }
+                    }
+                    _ => {}
+                },
+            )
+            .map_err(err)?;
         if let Some(e) = clock_error {
             return Err(e);
         }

@@ -1169,9 +1169,57 @@ pub const LOG_FILE: &str = "train_log.jsonl";
 /// state the optimizer's, and the log keeps the lines up to its step; without, `out` must not
 /// hold a run already. Returns the trained pipeline (with the moving-average weights when
 /// `options` keeps an EMA).
+///
+/// The set is encoded first by the pipeline's frozen VAE and CLIP encoder
+/// ([`RunEvent::Encoded`]); bad options and folders are refused before that.
+/// [`run_training_encoded`] trains on a set encoded once for several runs.
 pub fn run_training(
     pipeline: crate::MultiViewPipeline,
     set: &crate::training_set::TrainingSet,
+    options: TrainOptions,
+    run: &RunOptions,
+    out: &std::path::Path,
+    resume: bool,
+    on_event: &mut dyn FnMut(RunEvent),
+) -> Result<crate::MultiViewPipeline, Error> {
+    crate::training_set::check_set_size(set.dir(), set.size(), &pipeline)?;
+    check_run(&options, run, out, resume)?;
+    let device = pipeline.unet().devices().into_iter().next().unwrap_or_default();
+    let encoded = crate::training_set::EncodedSet::encode(&pipeline, set, &device, &mut |done, total| {
+        on_event(RunEvent::Encoded { done, total })
+    })?;
+    run_training_encoded(pipeline, &encoded, options, run, out, resume, on_event)
+}
+
+/// Refuses a run's bad options and folders before any work: 0 steps, objects or checkpoint
+/// interval, a resume without a checkpoint, a fresh run into a folder holding one.
+fn check_run(options: &TrainOptions, run: &RunOptions, out: &std::path::Path, resume: bool) -> Result<(), Error> {
+    if run.steps == 0 || run.objects_per_batch == 0 || run.checkpoint_every == 0 {
+        return Err(Error::invalid("run", "steps, objects_per_batch and checkpoint_every of at least 1"));
+    }
+    let checkpoint = out.join(CHECKPOINT_DIR);
+    if resume && !checkpoint.join(STATE_FILE).is_file() {
+        return Err(Error::invalid(
+            "resume",
+            format!("a checkpoint to resume from ({} is missing)", checkpoint.join(STATE_FILE).display()),
+        ));
+    }
+    if !resume && (checkpoint.exists() || out.join(LOG_FILE).exists()) {
+        return Err(Error::invalid(
+            "out",
+            format!("a folder without a run in it ({} has one: resume it, or choose another folder)", out.display()),
+        ));
+    }
+    options.validate()
+}
+
+/// [`run_training`] on a set already encoded by `pipeline`'s VAE and CLIP encoder (or by
+/// identical ones: training changes only the UNet, so the phases of a recipe can share one
+/// [`EncodedSet`](crate::training_set::EncodedSet) per background). The result is the same
+/// as `run_training` on the set the encoding came from.
+pub fn run_training_encoded(
+    pipeline: crate::MultiViewPipeline,
+    encoded: &crate::training_set::EncodedSet,
     options: TrainOptions,
     run: &RunOptions,
     out: &std::path::Path,
@@ -1182,39 +1230,15 @@ pub fn run_training(
 
     use crate::training_set::{EncodedSample, TrainDomain, assemble_batch};
 
-    if run.steps == 0 || run.objects_per_batch == 0 || run.checkpoint_every == 0 {
-        return Err(Error::invalid("run", "steps, objects_per_batch and checkpoint_every of at least 1"));
-    }
-    if set.size() as usize != pipeline.image_size() {
-        return Err(Error::format(
-            set.dir().join("dataset.json"),
-            "size",
-            format!("the model's image side {} (found {})", pipeline.image_size(), set.size()),
-        ));
+    crate::training_set::check_set_size(encoded.dir(), encoded.size(), &pipeline)?;
+    check_run(&options, run, out, resume)?;
+    if encoded.is_empty() {
+        return Err(Error::format(encoded.dir().join("dataset.json"), "samples", "at least one sample"));
     }
     let checkpoint = out.join(CHECKPOINT_DIR);
     let log_path = out.join(LOG_FILE);
-    if resume && !checkpoint.join(STATE_FILE).is_file() {
-        return Err(Error::invalid(
-            "resume",
-            format!("a checkpoint to resume from ({} is missing)", checkpoint.join(STATE_FILE).display()),
-        ));
-    }
-    if !resume && (checkpoint.exists() || log_path.exists()) {
-        return Err(Error::invalid(
-            "out",
-            format!("a folder without a run in it ({} has one: resume it, or choose another folder)", out.display()),
-        ));
-    }
-    // Bad options are refused before the folder is made and the set encoded.
-    options.validate()?;
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
     let device = pipeline.unet().devices().into_iter().next().unwrap_or_default();
-    let mut encoded = Vec::with_capacity(set.len());
-    for i in 0..set.len() {
-        encoded.push(EncodedSample::encode(&pipeline, &set.images(i)?, &device)?);
-        on_event(RunEvent::Encoded { done: i + 1, total: set.len() });
-    }
     let (unet, vae, clip, scheduler) = pipeline.into_parts();
     let unet = if resume { crate::UNet::from_dir(checkpoint.join("unet"), &device)? } else { unet };
     let class_dim = unet.config().projection_class_embeddings_input_dim.unwrap_or(0);
@@ -1241,7 +1265,7 @@ pub fn run_training(
     w3d_core::io::write_atomic_all(&[(&log_path, log_text.as_bytes())])?;
     let mut log = std::fs::OpenOptions::new().append(true).open(&log_path).map_err(|e| Error::io(&log_path, e))?;
     let train_device = trainer.device();
-    let encoded: Vec<EncodedSample> = encoded.iter().map(|s| s.to_device(&train_device)).collect();
+    let encoded: Vec<EncodedSample> = encoded.samples().iter().map(|s| s.to_device(&train_device)).collect();
     let stage = trainer.options().stage;
     let started = std::time::Instant::now();
     let save = |trainer: &Trainer| -> Result<(), Error> {

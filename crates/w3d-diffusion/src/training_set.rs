@@ -367,6 +367,75 @@ impl EncodedSample {
     }
 }
 
+/// A whole [`TrainingSet`] encoded by a pipeline's frozen VAE encoder and CLIP image encoder
+/// ([`EncodedSample`] per sample, in the set's order), on the background the set composites
+/// on. Training only ever changes the UNet, so the phases of one recipe that train on the
+/// same background can share one encoding ([`crate::train::run_training_encoded`]) instead of
+/// encoding the set again each (half a minute a phase for 84 samples at 64² on 2 cores).
+#[derive(Clone, Debug)]
+pub struct EncodedSet {
+    dir: PathBuf,
+    size: u32,
+    samples: Vec<EncodedSample>,
+}
+
+impl EncodedSet {
+    /// Encodes every sample of `set` with `pipeline`'s VAE and CLIP encoder on `device`,
+    /// calling `on_sample(done, total)` after each. The set's images must be the pipeline's
+    /// size (an error naming the set's `dataset.json` otherwise, before any encoding).
+    pub fn encode(
+        pipeline: &MultiViewPipeline,
+        set: &TrainingSet,
+        device: &Device,
+        on_sample: &mut dyn FnMut(usize, usize),
+    ) -> Result<Self, Error> {
+        check_set_size(set.dir(), set.size(), pipeline)?;
+        let mut samples = Vec::with_capacity(set.len());
+        for i in 0..set.len() {
+            samples.push(EncodedSample::encode(pipeline, &set.images(i)?, device)?);
+            on_sample(i + 1, set.len());
+        }
+        Ok(Self { dir: set.dir().to_path_buf(), size: set.size(), samples })
+    }
+
+    /// The folder of the set it was encoded from.
+    pub fn dir(&self) -> &Path {
+        &self.dir
+    }
+
+    /// Side of the set's images in pixels.
+    pub fn size(&self) -> u32 {
+        self.size
+    }
+
+    /// The encoded samples, in the set's order.
+    pub fn samples(&self) -> &[EncodedSample] {
+        &self.samples
+    }
+
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        self.samples.len()
+    }
+
+    /// Whether the set is empty (never, once encoded from an opened set).
+    pub fn is_empty(&self) -> bool {
+        self.samples.is_empty()
+    }
+}
+
+/// Refuses a set whose image side is not `pipeline`'s, naming the set's `dataset.json`.
+pub(crate) fn check_set_size(dir: &Path, size: u32, pipeline: &MultiViewPipeline) -> Result<(), Error> {
+    if size as usize != pipeline.image_size() {
+        return Err(Error::format(
+            dir.join("dataset.json"),
+            "size",
+            format!("the model's image side {} (found {size})", pipeline.image_size()),
+        ));
+    }
+    Ok(())
+}
+
 /// Assembles the batch of `stage` from `samples` (one object each): stage 3 takes both the
 /// normal and the colour views of every object (`domains` ignored); stages 1 and 2 take the
 /// views of `domains[i]` for object `i`. The condition is the colour input image, or in

@@ -203,7 +203,8 @@ fn stage_two_pipeline(device: &w3d_diffusion::Device) -> MultiViewPipeline {
 
 #[test]
 fn a_resumed_run_continues_the_uninterrupted_one_exactly() {
-    use w3d_diffusion::train::{RunEvent, RunOptions, TrainOptions, run_training};
+    use w3d_diffusion::train::{RunEvent, RunOptions, TrainOptions, run_training, run_training_encoded};
+    use w3d_diffusion::training_set::EncodedSet;
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
     std::fs::create_dir(&data).unwrap();
@@ -233,8 +234,12 @@ fn a_resumed_run_continues_the_uninterrupted_one_exactly() {
     let e =
         run_training(stage_two_pipeline(&device), &set, options.clone(), &run, &split, false, &mut |_| {}).unwrap_err();
     assert!(e.to_string().contains("resume"), "{e}");
+    // The second half on the set encoded once beforehand, as a recipe shares one encoding
+    // between its phases: the same losses as encoding the set in the run.
+    let encoded = EncodedSet::encode(&stage_two_pipeline(&device), &set, &device, &mut |_, _| {}).unwrap();
+    assert_eq!((encoded.len(), encoded.size()), (2, set.size()));
     let mut resumed_at = None;
-    run_training(stage_two_pipeline(&device), &set, options.clone(), &run, &split, true, &mut |e| {
+    run_training_encoded(stage_two_pipeline(&device), &encoded, options.clone(), &run, &split, true, &mut |e| {
         if let RunEvent::Resumed { step } = e {
             resumed_at = Some(step);
         }
@@ -242,6 +247,10 @@ fn a_resumed_run_continues_the_uninterrupted_one_exactly() {
     .unwrap();
     assert_eq!(resumed_at, Some(3));
     assert_eq!(log_losses(&split), expected, "the resumed run's losses differ from the uninterrupted run's");
+    let shared = dir.path().join("shared");
+    run_training_encoded(stage_two_pipeline(&device), &encoded, options.clone(), &run, &shared, false, &mut |_| {})
+        .unwrap();
+    assert_eq!(log_losses(&shared), expected, "a run on a shared encoding differs from one encoding the set");
     let missing = dir.path().join("nothing");
     let e = run_training(stage_two_pipeline(&device), &set, options, &run, &missing, true, &mut |_| {}).unwrap_err();
     assert!(e.to_string().contains("trainer_state.json"), "{e}");
