@@ -1232,9 +1232,6 @@ pub fn run_training_encoded(
 
     crate::training_set::check_set_size(encoded.dir(), encoded.size(), &pipeline)?;
     check_run(&options, run, out, resume)?;
-    if encoded.is_empty() {
-        return Err(Error::format(encoded.dir().join("dataset.json"), "samples", "at least one sample"));
-    }
     let checkpoint = out.join(CHECKPOINT_DIR);
     let log_path = out.join(LOG_FILE);
     std::fs::create_dir_all(out).map_err(|e| Error::io(out, e))?;
