@@ -10,6 +10,8 @@
 //!   the reconstruction accuracy harness (oracle views of `../shared/data/meshes`), writing
 //!   `target/bench/recon.json` and, on a full run, `docs/accuracy.md`.
 //! - `cargo xtask chart`: `docs/speed_accuracy.svg` from `target/bench/recon.json`.
+//! - `cargo xtask training-chart`: `docs/training_time.svg` (the small model's recipe hours
+//!   against its normal error) from the measured points in `docs/training_time.json`.
 //! - `cargo xtask faces-chart [--meshes a,b] [--size 512] [--curvature TOL|views:TOL|off]
 //!   [--uniform-from JSON]`: `docs/faces_accuracy.svg` and `target/bench/faces.json`, triangles
 //!   against Chamfer distance of the refinement's adaptive mesh and of uniform-edge-length
@@ -78,6 +80,7 @@ mod recon_spread;
 mod refine_table;
 mod robust;
 mod train_small;
+mod training_chart;
 
 #[derive(Parser)]
 #[command(about = "wonder3d-rs project automation")]
@@ -262,6 +265,9 @@ enum Task {
     },
     /// Draw the SVG charts in docs/ (speed against accuracy) from target/bench/*.json.
     Chart,
+    /// The small model's recipe wall time against its normal error on the scored objects:
+    /// docs/training_time.svg from the measured points in docs/training_time.json.
+    TrainingChart,
     /// Triangles against Chamfer distance of the refined (adaptive, simplified) mesh and of
     /// uniform-edge meshes fitted the same way (five objects, oracle enhancer):
     /// target/bench/faces.json and docs/faces_accuracy.svg.
@@ -794,6 +800,7 @@ fn main() -> ExitCode {
         Task::Deny => deny(),
         Task::GpuCheck => gpu::check(),
         Task::Chart => chart::run(),
+        Task::TrainingChart => training_chart::run(),
         Task::FacesChart { meshes, size, replot, curvature, uniform_from, bound } => {
             if bound {
                 faces_chart::bound()

@@ -76,6 +76,13 @@ pub const OBJECT_FRACTION: f32 = 0.75;
 /// than 0.8 in all three channels, since that needs |n| > 1.03).
 pub const BACKGROUND_THRESHOLD: f32 = 0.8;
 
+/// Draws of [`MultiViewPipeline::sample_views`] sampled together, as one batch of the UNet.
+/// A batch shares the fixed costs of every pass (operations too small to use all cores
+/// alone): on 2 CPU cores a small-model draw took 0.17 s a UNet pass in a batch of 4 against
+/// 0.21–0.23 s alone (docs/benchmarks.md, "Several draws as one batch"). More draws at once
+/// would hold more activations for little more gain.
+pub const DRAWS_PER_PASS: usize = 4;
+
 /// The output domain chosen by the domain switcher.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Domain {
@@ -273,8 +280,9 @@ pub struct SampleOptions {
     /// Seed of the initial noise and of the per-step noise when `eta > 0`.
     pub seed: u64,
     /// Draws generated for the input (seeds `seed`, `seed + 1`, …) and merged into their
-    /// [`GeneratedViews::consensus`]: 1 is the authors' single draw; each draw costs a whole
-    /// generation, and with a small model a few draws lower the normal error (docs/training.md).
+    /// [`GeneratedViews::consensus`]: 1 is the authors' single draw; each draw costs most of a
+    /// generation (up to [`DRAWS_PER_PASS`] share the UNet's passes), and with a small model a
+    /// few draws lower the normal error (docs/training.md).
     pub draws: usize,
 }
 
@@ -629,19 +637,20 @@ impl MultiViewPipeline {
         Ok(self.vae.encode_mean(image)? * self.vae.config().scaling_factor)
     }
 
-    /// Class labels `[12, input_dim]` of the batch `[normal × 6, colour × 6]`.
-    fn class_labels(&self, camera: CameraType, device: &Device) -> Result<Tensor<2>, Error> {
+    /// The switcher labels `[12·draws, input_dim]` of `draws` draws batched as [`join_draws`]
+    /// lays them out: the normal labels of every draw's 6 views, then the colour labels.
+    fn class_labels(&self, camera: CameraType, draws: usize, device: &Device) -> Result<Tensor<2>, Error> {
         let dim = self.unet.config().projection_class_embeddings_input_dim.unwrap_or(0);
-        let mut labels = switcher_labels(Domain::Normal, camera, dim)?;
-        labels.extend(switcher_labels(Domain::Colour, camera, dim)?);
-        Ok(Tensor::from_data(TensorData::new(labels, [2 * NUM_VIEWS, dim]), device))
+        let mut labels = switcher_labels(Domain::Normal, camera, dim)?.repeat(draws);
+        labels.extend(switcher_labels(Domain::Colour, camera, dim)?.repeat(draws));
+        Ok(Tensor::from_data(TensorData::new(labels, [2 * NUM_VIEWS * draws, dim]), device))
     }
 
-    /// The guided noise prediction for latents `[12, c, h, w]` (`[normal × 6, colour × 6]`)
-    /// at timestep `t`.
+    /// The guided noise prediction for latents `[12·k, c, h, w]` (`k` draws as [`join_draws`]
+    /// lays them out: `[normal × 6 × k, colour × 6 × k]`) at timestep `t`.
     ///
     /// The unconditional branch (zero image embedding, zero condition latent) and the
-    /// conditional one are two UNet evaluations of 12 images each, one after the other. The
+    /// conditional one are two UNet evaluations of the whole batch, one after the other. The
     /// reference batches them as 24 images `[normal uncond, normal cond, colour uncond, colour
     /// cond]`; every attention of the UNet stays inside one branch (multi-view attention
     /// within a domain's 6 views, cross-domain attention between view `i` of the normal and
@@ -705,10 +714,11 @@ impl MultiViewPipeline {
         Ok(())
     }
 
-    /// Sampling (DDIM, DPM-Solver++(2M) or UniPC, per `options.sampler`) from `noise` down to clean latents `[12, c, h, w]` (`[normal × 6,
-    /// colour × 6]`). `noise` is `[6, c, h, w]` (one latent per view, shared by both domains,
-    /// as the authors sample) or `[12, c, h, w]` (per domain, e.g. from
-    /// [`MultiViewPipeline::invert`]). `progress(done, total)` is called after every step.
+    /// Sampling (DDIM, DPM-Solver++(2M) or UniPC, per `options.sampler`) from `noise` down
+    /// to clean latents `[12, c, h, w]` (`[normal × 6, colour × 6]`). `noise` is `[6, c, h,
+    /// w]` (one latent per view, shared by both domains, as the authors sample) or `[12, c, h,
+    /// w]` (per domain, e.g. from [`MultiViewPipeline::invert`]). `progress(done, total)` is
+    /// called after every step.
     pub fn sample_from(
         &self,
         noise: Tensor<4>,
@@ -718,9 +728,34 @@ impl MultiViewPipeline {
     ) -> Result<Tensor<4>, Error> {
         self.check_latents(&noise, "noise", true)?;
         self.check_conditioning(cond)?;
-        let device = noise.device();
-        let labels = self.class_labels(options.camera, &device)?;
-        let mut x = if noise.dims()[0] == NUM_VIEWS { noise.repeat_dim(0, 2) } else { noise };
+        let mut latents = self.sample_draws(vec![noise], &[options.seed], cond, options, progress)?;
+        Ok(latents.remove(0))
+    }
+
+    /// [`MultiViewPipeline::sample_from`] for several draws at once, each from its own noise
+    /// (of a shape the callers checked) with its own seed for the per-step noise: the draws go through the UNet as
+    /// one batch, every attention staying inside its draw, so each comes out as it would alone
+    /// (up to the last bits of f32 where an operation over the larger batch is split across
+    /// the cores differently) while the batch shares the passes' fixed costs.
+    /// `progress(step, steps)` after every step of the batch.
+    fn sample_draws(
+        &self,
+        noises: Vec<Tensor<4>>,
+        seeds: &[u64],
+        cond: &Conditioning,
+        options: &SampleOptions,
+        progress: &mut dyn FnMut(usize, usize),
+    ) -> Result<Vec<Tensor<4>>, Error> {
+        debug_assert_eq!(noises.len(), seeds.len(), "one seed per draw");
+        let draws = noises.len();
+        let Some(first) = noises.first() else {
+            return Err(Error::invalid("draws", "at least 1 draw (found 0)"));
+        };
+        let device = first.device();
+        let labels = self.class_labels(options.camera, draws, &device)?;
+        let per_domain: Vec<Tensor<4>> =
+            noises.into_iter().map(|n| if n.dims()[0] == NUM_VIEWS { n.repeat_dim(0, 2) } else { n }).collect();
+        let mut x = join_draws(&per_domain);
         match options.sampler {
             SamplerKind::Ddim => {
                 let scheduler = DdimScheduler::new(self.scheduler.clone(), options.steps)?;
@@ -728,8 +763,15 @@ impl MultiViewPipeline {
                 for (i, &t) in scheduler.timesteps().iter().enumerate() {
                     let eps = self.predict(x.clone(), t, cond, &labels, options.guidance)?;
                     let variance_noise = (options.eta > 0.0).then(|| {
-                        let step_seed = options.seed ^ (i as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
-                        gaussian_noise(x.dims(), step_seed, &device)
+                        let shape = per_domain[0].dims();
+                        let per_draw: Vec<Tensor<4>> = seeds
+                            .iter()
+                            .map(|&seed| {
+                                let step_seed = seed ^ (i as u64 + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+                                gaussian_noise(shape, step_seed, &device)
+                            })
+                            .collect();
+                        join_draws(&per_draw)
                     });
                     x = scheduler.step(eps, t, x, options.eta, variance_noise)?;
                     progress(i + 1, total);
@@ -754,7 +796,7 @@ impl MultiViewPipeline {
                 }
             }
         }
-        Ok(x)
+        Ok(split_draws(x, draws))
     }
 
     /// DDIM inversion of clean latents `[12, c, h, w]` (`[normal × 6, colour × 6]`) to the
@@ -773,7 +815,7 @@ impl MultiViewPipeline {
         self.check_latents(&latents, "latents", false)?;
         self.check_conditioning(cond)?;
         let inverse = DdimInverseScheduler::new(self.scheduler.clone(), steps)?;
-        let labels = self.class_labels(camera, &latents.device())?;
+        let labels = self.class_labels(camera, 1, &latents.device())?;
         ddim_invert(&inverse, latents, refinements, |x, t| self.predict(x, t, cond, &labels, 1.0))
     }
 
@@ -815,7 +857,9 @@ impl MultiViewPipeline {
     /// The views of one conditioning: `options.draws` draws (seeded noise,
     /// [`MultiViewPipeline::sample_from`], [`MultiViewPipeline::decode`]; seeds `seed`,
     /// `seed + 1`, …) merged into their [`GeneratedViews::consensus`], one draw as it is.
-    /// `progress` counts the denoising steps of all draws together.
+    /// Up to [`DRAWS_PER_PASS`] draws are sampled together, as one batch of the UNet; each
+    /// draw's views are those it samples alone, up to the last bits of f32. `progress` counts
+    /// the denoising steps of all draws together.
     pub fn sample_views(
         &self,
         cond: &Conditioning,
@@ -826,19 +870,54 @@ impl MultiViewPipeline {
         if options.draws == 0 {
             return Err(Error::invalid("draws", "at least 1 draw (found 0)"));
         }
-        // Grown draw by draw: `draws` is the caller's number, not memory to claim up front.
+        self.check_conditioning(cond)?;
+        // Grown pass by pass: `draws` is the caller's number, not memory to claim up front.
         let mut draws = Vec::new();
-        for k in 0..options.draws {
-            let draw = SampleOptions { seed: options.seed.wrapping_add(k as u64), ..*options };
-            let noise = self.initial_noise(draw.seed, device);
-            let latents = self.sample_from(noise, cond, &draw, &mut |i, n| {
-                progress(k.saturating_mul(n).saturating_add(i), options.draws.saturating_mul(n));
+        let mut first = 0;
+        while first < options.draws {
+            let count = (options.draws - first).min(DRAWS_PER_PASS);
+            let seeds: Vec<u64> = (first..first + count).map(|k| options.seed.wrapping_add(k as u64)).collect();
+            let noises = seeds.iter().map(|&seed| self.initial_noise(seed, device)).collect();
+            let latents = self.sample_draws(noises, &seeds, cond, options, &mut |i, n| {
+                let done = first.saturating_mul(n).saturating_add(i.saturating_mul(count));
+                progress(done, options.draws.saturating_mul(n));
             })?;
-            draws.push(self.decode(latents, options.camera)?);
+            for latents in latents {
+                draws.push(self.decode(latents, options.camera)?);
+            }
+            first += count;
         }
         if draws.len() == 1 {
             return Ok(draws.remove(0));
         }
         GeneratedViews::consensus(&draws)
     }
+}
+
+/// Draws `[12, c, h, w]` each (`[normal × 6, colour × 6]`) laid out as one UNet batch of
+/// `[12·k, c, h, w]`: every draw's normal half, then every draw's colour half — the layout
+/// whose cross-domain attention pairs view `i` of a draw's two halves.
+fn join_draws(draws: &[Tensor<4>]) -> Tensor<4> {
+    if let [one] = draws {
+        return one.clone();
+    }
+    let half = |d: &Tensor<4>, k: usize| d.clone().narrow(0, k * NUM_VIEWS, NUM_VIEWS);
+    let mut halves: Vec<Tensor<4>> = draws.iter().map(|d| half(d, 0)).collect();
+    halves.extend(draws.iter().map(|d| half(d, 1)));
+    Tensor::cat(halves, 0)
+}
+
+/// The inverse of [`join_draws`]: `[12·k, c, h, w]` back to `k` draws of `[12, c, h, w]`.
+fn split_draws(x: Tensor<4>, draws: usize) -> Vec<Tensor<4>> {
+    if draws == 1 {
+        return vec![x];
+    }
+    let offset = draws * NUM_VIEWS;
+    (0..draws)
+        .map(|k| {
+            let normal = x.clone().narrow(0, k * NUM_VIEWS, NUM_VIEWS);
+            let colour = x.clone().narrow(0, offset + k * NUM_VIEWS, NUM_VIEWS);
+            Tensor::cat(vec![normal, colour], 0)
+        })
+        .collect()
 }

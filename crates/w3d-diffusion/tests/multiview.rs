@@ -13,10 +13,10 @@ use std::collections::HashMap;
 
 use common::{fixture, max_abs, max_abs_diff, max_abs_vec, tensor, test_devices, values};
 use w3d_core::{Image, ViewSet};
-use w3d_diffusion::multiview::NUM_VIEWS;
+use w3d_diffusion::multiview::{DRAWS_PER_PASS, NUM_VIEWS};
 use w3d_diffusion::{
-    CameraType, Domain, GeneratedViews, MultiViewPipeline, SafetensorsFile, SampleOptions, Tensor, TensorData, UNet,
-    UNetConfig, WeightStorage, prepare_input, switcher_labels,
+    CameraType, Domain, GeneratedViews, MultiViewPipeline, SafetensorsFile, SampleOptions, SamplerKind, Tensor,
+    TensorData, UNet, UNetConfig, WeightStorage, prepare_input, switcher_labels,
 };
 
 fn unet_io() -> SafetensorsFile {
@@ -424,13 +424,24 @@ fn several_draws_are_the_consensus_of_consecutive_seeds() {
     let run = |options: &SampleOptions, calls: &mut Vec<(usize, usize)>| {
         pipeline.generate(&rgba, options, &device, &mut |i, n| calls.push((i, n))).unwrap()
     };
-    let three = run(&SampleOptions { draws: 3, ..options }, &mut calls);
-    // One progress bar over all the draws' steps.
-    assert_eq!(calls, (1..=6).map(|i| (i, 6)).collect::<Vec<_>>());
+    // More draws than one pass of the UNet takes: a pass of DRAWS_PER_PASS, then the rest.
+    let draws = DRAWS_PER_PASS + 1;
+    let several = run(&SampleOptions { draws, ..options }, &mut calls);
+    // One progress bar over all the draws' steps, moved by each batched step.
+    let p = DRAWS_PER_PASS;
+    let total = 2 * draws;
+    assert_eq!(calls, vec![(p, total), (2 * p, total), (2 * p + 1, total), (2 * p + 2, total)]);
+    // Each draw of a batch is the draw sampled alone, to the bit.
     let singles: Vec<GeneratedViews> =
-        (7..10).map(|seed| run(&SampleOptions { seed, ..options }, &mut Vec::new())).collect();
-    assert_eq!(three, GeneratedViews::consensus(&singles).unwrap());
+        (7..7 + draws as u64).map(|seed| run(&SampleOptions { seed, ..options }, &mut Vec::new())).collect();
+    assert_eq!(several, GeneratedViews::consensus(&singles).unwrap());
     assert_ne!(singles[0], singles[1]);
+    // The same with a multistep sampler (its history batched too) and without guidance.
+    let unipc = SampleOptions { sampler: SamplerKind::UniPc, guidance: 1.0, steps: 3, ..options };
+    let pair = run(&SampleOptions { draws: 2, ..unipc }, &mut Vec::new());
+    let alone: Vec<GeneratedViews> =
+        (7..9).map(|seed| run(&SampleOptions { seed, ..unipc }, &mut Vec::new())).collect();
+    assert_eq!(pair, GeneratedViews::consensus(&alone).unwrap());
     let err = pipeline.generate(&rgba, &SampleOptions { draws: 0, ..options }, &device, &mut |_, _| {}).unwrap_err();
     assert!(err.to_string().contains("draws"), "{err}");
 }
