@@ -79,8 +79,9 @@ pub const BACKGROUND_THRESHOLD: f32 = 0.8;
 /// Draws of [`MultiViewPipeline::sample_views`] sampled together, as one batch of the UNet.
 /// A batch shares the fixed costs of every pass (operations too small to use all cores
 /// alone): on 2 CPU cores a small-model draw took 0.17 s a UNet pass in a batch of 4 against
-/// 0.21–0.23 s alone (docs/benchmarks.md, "Several draws as one batch"). More draws at once
-/// would hold more activations for little more gain.
+/// 0.21–0.23 s alone (docs/benchmarks.md, "Several draws as one batch"; a UNet of half its
+/// width measured 10 % slower batched). More draws at once would hold more activations for
+/// little more gain.
 pub const DRAWS_PER_PASS: usize = 4;
 
 /// The output domain chosen by the domain switcher.
