@@ -4,6 +4,7 @@
 //! point per preset and mesh from `target/bench/recon.json` (orthographic oracle runs), with
 //! the published Wonder3D / Wonder3D++ numbers drawn for reference.
 
+use plotters::coord::ranged1d::ValueFormatter;
 use plotters::prelude::*;
 use serde_json::Value;
 
@@ -15,6 +16,37 @@ const PUBLISHED: &[(&str, f64, f64)] = &[
     ("Wonder3D++ init+coarse (paper, A100, GSO)", 42.0, 0.0193),
     ("Wonder3D v1 NeuS (paper, A100, GSO)", 150.0, 0.0222),
 ];
+
+/// Colour-blind-safe palette (Okabe–Ito) of the charts' series, one colour per object or preset.
+pub(crate) const OKABE_ITO: [RGBColor; 5] = [
+    RGBColor(0, 114, 178),
+    RGBColor(230, 159, 0),
+    RGBColor(0, 158, 115),
+    RGBColor(204, 121, 167),
+    RGBColor(86, 180, 233),
+];
+
+/// The grid and axis descriptions every chart of `docs/` draws: light minor lines, grey major
+/// ones.
+pub(crate) fn draw_grid<DB, X, Y>(
+    chart: &mut ChartContext<'_, DB, Cartesian2d<X, Y>>,
+    x_desc: &str,
+    y_desc: &str,
+) -> Result<(), String>
+where
+    DB: DrawingBackend,
+    X: Ranged + ValueFormatter<X::ValueType>,
+    Y: Ranged + ValueFormatter<Y::ValueType>,
+{
+    chart
+        .configure_mesh()
+        .light_line_style(RGBColor(240, 240, 240))
+        .bold_line_style(RGBColor(200, 200, 200))
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .draw()
+        .map_err(|e| e.to_string())
+}
 
 /// One preset's points: (name, colour, (seconds, Chamfer) per mesh).
 type Series = (&'static str, RGBColor, Vec<(f64, f64)>);
@@ -58,14 +90,7 @@ pub fn run() -> Result<(), String> {
             .y_label_area_size(80)
             .build_cartesian_2d((1.0f64..300.0f64).log_scale(), 0.0f64..max_cd)
             .map_err(|e| e.to_string())?;
-        chart
-            .configure_mesh()
-            .light_line_style(RGBColor(240, 240, 240))
-            .bold_line_style(RGBColor(200, 200, 200))
-            .x_desc("wall-clock seconds, init + coarse (log scale)")
-            .y_desc("Chamfer")
-            .draw()
-            .map_err(|e| e.to_string())?;
+        draw_grid(&mut chart, "wall-clock seconds, init + coarse (log scale)", "Chamfer")?;
         for (name, colour, points) in &series {
             let colour = *colour;
             chart

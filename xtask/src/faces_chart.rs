@@ -342,15 +342,6 @@ pub(crate) fn replot() -> Result<(), String> {
     Ok(())
 }
 
-/// Colour-blind-safe palette (Okabe–Ito), one colour per object.
-const COLOURS: [RGBColor; 5] = [
-    RGBColor(0, 114, 178),
-    RGBColor(230, 159, 0),
-    RGBColor(0, 158, 115),
-    RGBColor(204, 121, 167),
-    RGBColor(86, 180, 233),
-];
-
 /// The chart: per object the uniform curve (solid line and dots), the simplification curve
 /// of the adaptive mesh (dashed line and small triangles), the refined mesh of the defaults
 /// (a large filled triangle) and the coarse mesh (a hollow square); triangles on a log axis,
@@ -378,15 +369,8 @@ fn chart(rows: &[Value], out: &std::path::Path) -> Result<(), String> {
         .y_label_area_size(80)
         .build_cartesian_2d((min_n * 0.8..max_n * 1.25).log_scale(), 0.0f64..max_cd)
         .map_err(|e| e.to_string())?;
-    chart
-        .configure_mesh()
-        .light_line_style(RGBColor(240, 240, 240))
-        .bold_line_style(RGBColor(200, 200, 200))
-        .x_desc("triangles (log scale)")
-        .y_desc("surface Chamfer distance")
-        .draw()
-        .map_err(|e| e.to_string())?;
-    for (r, &colour) in rows.iter().zip(COLOURS.iter().cycle()) {
+    crate::chart::draw_grid(&mut chart, "triangles (log scale)", "surface Chamfer distance")?;
+    for (r, &colour) in rows.iter().zip(crate::chart::OKABE_ITO.iter().cycle()) {
         let name = r["mesh"].as_str().unwrap_or("").to_string();
         let uniform = series(r, "uniform");
         chart

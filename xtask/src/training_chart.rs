@@ -12,9 +12,8 @@
 use plotters::prelude::*;
 use serde_json::Value;
 
-/// Colour-blind-safe palette (Okabe–Ito), one colour per object.
-const COLOURS: [RGBColor; 4] =
-    [RGBColor(0, 114, 178), RGBColor(230, 159, 0), RGBColor(0, 158, 115), RGBColor(204, 121, 167)];
+/// One colour per object: the first four of the charts' palette.
+const COLOURS: &[RGBColor] = crate::chart::OKABE_ITO.split_at(4).0;
 
 /// One series: its legend, whether it is drawn dashed, and per object its (hours, degrees).
 struct Series {
@@ -76,30 +75,22 @@ pub(crate) fn run() -> Result<(), String> {
     let out = docs.join("training_time.svg");
     let root = SVGBackend::new(&out, (900, 580)).into_drawing_area();
     root.fill(&WHITE).map_err(|e| e.to_string())?;
+    let (x1, y0, y1) = ((max_h * 1.05).ceil(), (min_d - 1.0).floor(), (max_d + 1.0).ceil());
     let mut chart = ChartBuilder::on(&root)
         .caption("Small model: recipe wall time against normal error (4 draws, no guidance)", ("sans-serif", 18))
         .margin(12)
         .x_label_area_size(40)
         .y_label_area_size(60)
-        .build_cartesian_2d(0.0..(max_h * 1.05).ceil(), (min_d - 1.0).floor()..(max_d + 1.0).ceil())
+        .build_cartesian_2d(0.0..x1, y0..y1)
         .map_err(|e| e.to_string())?;
-    chart
-        .configure_mesh()
-        .light_line_style(RGBColor(240, 240, 240))
-        .bold_line_style(RGBColor(200, 200, 200))
-        .x_desc("hours from `cargo xtask train-small` to the model, 2 CPU cores")
-        .y_desc("normal error inside the true mask (°)")
-        .draw()
-        .map_err(|e| e.to_string())?;
+    crate::chart::draw_grid(
+        &mut chart,
+        "hours from `cargo xtask train-small` to the model, 2 CPU cores",
+        "normal error inside the true mask (°)",
+    )?;
     let grey = RGBColor(120, 120, 120);
-    let (y0, y1) = ((min_d - 1.0).floor(), (max_d + 1.0).ceil());
     chart
-        .draw_series(DashedLineSeries::new(
-            vec![(0.0, target), ((max_h * 1.05).ceil(), target)],
-            6,
-            4,
-            grey.stroke_width(1),
-        ))
+        .draw_series(DashedLineSeries::new(vec![(0.0, target), (x1, target)], 6, 4, grey.stroke_width(1)))
         .map_err(|e| e.to_string())?
         .label(format!("the issue's limits: {target}° and {budget} h"))
         .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], grey.stroke_width(1)));
