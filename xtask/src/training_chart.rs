@@ -1,12 +1,12 @@
 //! `cargo xtask training-chart`: the small model's recipe wall time against its normal error,
 //! `docs/training_time.svg`, from the measured points in `docs/training_time.json`.
 //!
-//! The JSON holds what `docs/training.md` reports (items 6, 9 and 11 of "Where the error comes
+//! The JSON holds what `docs/training.md` reports (items 6, 9, 11, 12 and 13 of "Where the error comes
 //! from"): per series of models (a schedule and its continuations), per model the hours its
 //! recipe took or takes from `cargo xtask train-small` to the model folder and the mean
 //! normal error inside the true mask of each scored object with the demo's sampling
 //! (`cargo xtask eval-small --draws 4 --guidance 1`). The chart draws one colour per object
-//! and one line style per series, with the issue's two limits (15°, 3 h) as grey lines: where
+//! and one line style and marker per series, with the issue's two limits (15°, 3 h) as grey lines: where
 //! the objects cross 15° against where 3 h ends is the question the chart answers.
 
 use plotters::prelude::*;
@@ -29,6 +29,8 @@ enum Marker {
     Circle,
     Triangle,
     Square,
+    Cross,
+    Ring,
 }
 
 pub(crate) fn run() -> Result<(), String> {
@@ -48,7 +50,7 @@ pub(crate) fn run() -> Result<(), String> {
     }
     let target = doc["target_deg"].as_f64().ok_or_else(|| bad("no number `target_deg`"))?;
     let budget = doc["budget_hours"].as_f64().ok_or_else(|| bad("no number `budget_hours`"))?;
-    let markers = [Marker::Circle, Marker::Triangle, Marker::Square];
+    let markers = [Marker::Circle, Marker::Triangle, Marker::Square, Marker::Cross, Marker::Ring];
     let mut series = Vec::new();
     for (k, s) in doc["series"].as_array().ok_or_else(|| bad("no `series` array"))?.iter().enumerate() {
         let name = s["name"].as_str().ok_or_else(|| bad(&format!("series {k}: no `name`")))?.to_string();
@@ -126,6 +128,8 @@ pub(crate) fn run() -> Result<(), String> {
             Marker::Square => {
                 entry.legend(move |(x, y)| lines(x, y) + Rectangle::new([(x + 6, y - 4), (x + 14, y + 4)], style))
             }
+            Marker::Cross => entry.legend(move |(x, y)| lines(x, y) + Cross::new((x + 10, y), 4, style)),
+            Marker::Ring => entry.legend(move |(x, y)| lines(x, y) + Circle::new((x + 10, y), 4, style)),
         };
     }
     for (o, object) in objects.iter().enumerate() {
@@ -169,6 +173,12 @@ fn draw_markers(chart: &mut Chart<'_>, points: &[(f64, f64)], marker: Marker, co
                     .map(|&p| EmptyElement::at(p) + Rectangle::new([(-4, -4), (4, 4)], colour.stroke_width(2))),
             )
             .map(|_| ()),
+        Marker::Cross => {
+            chart.draw_series(points.iter().map(|&p| Cross::new(p, 4, colour.stroke_width(2)))).map(|_| ())
+        }
+        Marker::Ring => {
+            chart.draw_series(points.iter().map(|&p| Circle::new(p, 4, colour.stroke_width(2)))).map(|_| ())
+        }
     };
     result.map_err(|e| e.to_string())
 }
