@@ -116,21 +116,14 @@ pub(crate) fn run() -> Result<(), String> {
             .map_err(|e| e.to_string())?
             .label(s.name.clone());
         let style = BLACK.stroke_width(2);
-        let lines = move |x, y| {
-            let [a, b] = legend_line(x, y, dashed);
-            EmptyElement::at((0, 0)) + PathElement::new(a, style) + PathElement::new(b, style)
-        };
-        match s.marker {
-            Marker::Circle => entry.legend(move |(x, y)| lines(x, y) + Circle::new((x + 10, y), 4, BLACK.filled())),
-            Marker::Triangle => {
-                entry.legend(move |(x, y)| lines(x, y) + TriangleMarker::new((x + 10, y), 5, BLACK.filled()))
-            }
-            Marker::Square => {
-                entry.legend(move |(x, y)| lines(x, y) + Rectangle::new([(x + 6, y - 4), (x + 14, y + 4)], style))
-            }
-            Marker::Cross => entry.legend(move |(x, y)| lines(x, y) + Cross::new((x + 10, y), 4, style)),
-            Marker::Ring => entry.legend(move |(x, y)| lines(x, y) + Circle::new((x + 10, y), 4, style)),
-        };
+        let marker = s.marker;
+        entry.legend(move |(x, y)| {
+            let [a, b] = legend_line(dashed);
+            EmptyElement::at((x + 10, y))
+                + PathElement::new(a, style)
+                + PathElement::new(b, style)
+                + marker_shape(marker, BLACK)
+        });
     }
     for (o, object) in objects.iter().enumerate() {
         let colour = COLOURS[o];
@@ -161,33 +154,31 @@ type Chart<'a> = ChartContext<
 
 /// The points of one object in one series.
 fn draw_markers(chart: &mut Chart<'_>, points: &[(f64, f64)], marker: Marker, colour: RGBColor) -> Result<(), String> {
-    let result = match marker {
-        Marker::Circle => chart.draw_series(points.iter().map(|&p| Circle::new(p, 4, colour.filled()))).map(|_| ()),
-        Marker::Triangle => {
-            chart.draw_series(points.iter().map(|&p| TriangleMarker::new(p, 5, colour.filled()))).map(|_| ())
-        }
-        Marker::Square => chart
-            .draw_series(
-                points
-                    .iter()
-                    .map(|&p| EmptyElement::at(p) + Rectangle::new([(-4, -4), (4, 4)], colour.stroke_width(2))),
-            )
-            .map(|_| ()),
-        Marker::Cross => {
-            chart.draw_series(points.iter().map(|&p| Cross::new(p, 4, colour.stroke_width(2)))).map(|_| ())
-        }
-        Marker::Ring => {
-            chart.draw_series(points.iter().map(|&p| Circle::new(p, 4, colour.stroke_width(2)))).map(|_| ())
-        }
-    };
-    result.map_err(|e| e.to_string())
+    chart
+        .draw_series(points.iter().map(|&p| EmptyElement::at(p) + marker_shape(marker, colour)))
+        .map(|_| ())
+        .map_err(|e| e.to_string())
 }
 
-/// A series' legend line, solid or two dashes, in black (its marker is added by the caller).
-fn legend_line(x: i32, y: i32, dashed: bool) -> [Vec<(i32, i32)>; 2] {
+/// The shape of `marker` in `colour`, centred on its anchor: the one drawing of each marker,
+/// for the points and for the legend alike.
+fn marker_shape<DB: DrawingBackend>(marker: Marker, colour: RGBColor) -> DynElement<'static, DB, (i32, i32)> {
+    let stroke = colour.stroke_width(2);
+    match marker {
+        Marker::Circle => Circle::new((0, 0), 4, colour.filled()).into_dyn(),
+        Marker::Triangle => TriangleMarker::new((0, 0), 5, colour.filled()).into_dyn(),
+        Marker::Square => Rectangle::new([(-4, -4), (4, 4)], stroke).into_dyn(),
+        Marker::Cross => Cross::new((0, 0), 4, stroke).into_dyn(),
+        Marker::Ring => Circle::new((0, 0), 4, stroke).into_dyn(),
+    }
+}
+
+/// A series' legend line, solid or two dashes, relative to the legend marker's centre (the
+/// marker is added by the caller).
+fn legend_line(dashed: bool) -> [Vec<(i32, i32)>; 2] {
     if dashed {
-        [vec![(x, y), (x + 6, y)], vec![(x + 14, y), (x + 20, y)]]
+        [vec![(-10, 0), (-4, 0)], vec![(4, 0), (10, 0)]]
     } else {
-        [vec![(x, y), (x + 10, y)], vec![(x + 10, y), (x + 20, y)]]
+        [vec![(-10, 0), (0, 0)], vec![(0, 0), (10, 0)]]
     }
 }
