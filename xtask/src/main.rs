@@ -123,11 +123,22 @@ enum Task {
         #[arg(long)]
         resume: bool,
         /// Steps of the UNet phases (stages 1, 2, 3, joint, joint2, cool-down, joint3,
-        /// cool-down 2, joint4, cool-down 3, joint5, cool-down 4), comma separated, instead of
+        /// cool-down 2, joint4, cool-down 3, joint5, cool-down 4, joint6, cool-down 5), comma separated, instead of
         /// the recipe's; to try a shorter schedule. At least the three stages' counts; 0 leaves
         /// a later phase out, and so does ending the list before it. Recorded in `recipe.json`.
         #[arg(long, value_delimiter = ',')]
         phase_steps: Option<Vec<usize>>,
+        /// Passes of the decoder's fine-tune as STEPS:LR, comma separated, instead of the
+        /// recipe's `1500:3e-4,4500:2e-4` (each pass starts with fresh optimizer moments).
+        /// Recorded in `recipe.json`.
+        #[arg(long, value_delimiter = ',', value_parser = train_small::parse_decoder_pass)]
+        decoder_passes: Option<Vec<(usize, f64)>>,
+        /// The UNet's `config.json` instead of the recipe's
+        /// (`crates/w3d-diffusion/configs/small/unet`), e.g. the half-width
+        /// `configs/small/unet-half` (docs/training.md). Used when the run starts; a resumed
+        /// run keeps its UNet.
+        #[arg(long)]
+        unet_config: Option<PathBuf>,
     },
     /// Fine-tune the VAE decoder of a small model (encoder frozen, so its UNet keeps
     /// working) on a training set's views on white (docs/training.md, "The decoder").
@@ -815,8 +826,9 @@ fn main() -> ExitCode {
         Task::ValidateGlb { files } => validate_glb(&files),
         Task::LoadGlb { files, vertices, triangles } => load_glb(&files, vertices, triangles),
         Task::Fixtures { which } => fixtures(&which),
-        Task::TrainSmall { out, quick, resume, phase_steps } => {
-            train_small::run(&out, quick, resume, phase_steps.as_deref())
+        Task::TrainSmall { out, quick, resume, phase_steps, decoder_passes, unet_config } => {
+            let overrides = train_small::Overrides { phase_steps, decoder_passes, unet_config };
+            train_small::run(&out, quick, resume, &overrides)
         }
         Task::EvalSmall {
             model,

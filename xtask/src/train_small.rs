@@ -163,13 +163,15 @@ const PHASES: [Phase; PHASE_COUNT] = [
     Phase::cool_down("cooldown3", 6),
     Phase::joint("joint5", 7, Some(0.999)),
     Phase::cool_down("cooldown4", 8),
+    Phase::joint("joint6", 14, Some(0.999)),
+    Phase::cool_down("cooldown5", 15),
 ];
 
 /// The number of UNet phases ([`PHASES`]).
-pub(crate) const PHASE_COUNT: usize = 12;
+pub(crate) const PHASE_COUNT: usize = 14;
 
 /// The schedule of one run.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub(crate) struct Schedule {
     pub samples: usize,
     pub size: u32,
@@ -179,10 +181,9 @@ pub(crate) struct Schedule {
     /// Warm-up steps of each phase.
     pub stage_warmup: [usize; PHASE_COUNT],
     pub stage_lr: [f64; PHASE_COUNT],
-    /// Steps and learning rate of each pass of the decoder's fine-tune after the UNet
+    /// Steps and learning rate of each pass of the decoder's fine-tune beside the UNet
     /// ([`tune_decoder`]; each pass starts with fresh optimizer moments).
-    pub decoder_steps: [usize; 2],
-    pub decoder_lr: [f64; 2],
+    pub decoder_passes: Vec<(usize, f64)>,
     pub objects_per_batch: usize,
     /// Min-SNR γ of the UNet's loss (`None`: the plain MSE of the v-prediction).
     pub min_snr_gamma: Option<f64>,
@@ -196,14 +197,14 @@ impl Schedule {
             vae_steps: 1200,
             // The last six phases (added on 2026-12-06) lowered the generated normals' error
             // of every training object (docs/training.md, "Where the error comes from").
-            stage_steps: [800, 6000, 1000, 3000, 22000, 2000, 20000, 2000, 7000, 2000, 4000, 2000],
-            stage_warmup: [40, 300, 75, 50, 50, 50, 50, 50, 50, 50, 50, 50],
-            stage_lr: [5e-4, 3e-4, 2e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4],
+            // The sixth pair (joint6, cooldown5) is left out: `--phase-steps` can add it.
+            stage_steps: [800, 6000, 1000, 3000, 22000, 2000, 20000, 2000, 7000, 2000, 4000, 2000, 0, 0],
+            stage_warmup: [40, 300, 75, 50, 50, 50, 50, 50, 50, 50, 50, 50, 50, 50],
+            stage_lr: [5e-4, 3e-4, 2e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4],
             // The second pass (added on 2026-12-05) lowered the decoder's own error on the
             // training views from 15.4–30.3° to 11.1–20.7° and the generated normals' by
             // 0.2–4.8° (docs/training.md).
-            decoder_steps: [1500, 4500],
-            decoder_lr: [3e-4, 2e-4],
+            decoder_passes: vec![(1500, 3e-4), (4500, 2e-4)],
             objects_per_batch: 1,
             // The small model predicts v and weighs every timestep alike in v (x₀ error
             // weighted by SNR + 1): with ε or Min-SNR weights (x₀ error weighted by
@@ -221,10 +222,29 @@ impl Schedule {
             vae_steps: 20,
             stage_steps: [10; PHASE_COUNT],
             stage_warmup: [1; PHASE_COUNT],
-            decoder_steps: [10, 10],
+            decoder_passes: vec![(10, 3e-4), (10, 2e-4)],
             ..Self::full()
         }
     }
+}
+
+/// What `cargo xtask train-small` may change in the recipe (each `None`: the recipe's).
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Overrides {
+    /// Steps of the UNet phases in order (`--phase-steps`; see [`phase_steps_of`]).
+    pub phase_steps: Option<Vec<usize>>,
+    /// Steps and learning rate of each of the decoder's passes (`--decoder-passes`).
+    pub decoder_passes: Option<Vec<(usize, f64)>>,
+    /// The UNet's `config.json` (`--unet-config`; the recipe's is `configs/small/unet`).
+    pub unet_config: Option<PathBuf>,
+}
+
+/// One `--decoder-passes` item, `STEPS:LR` (e.g. `4500:1e-4`).
+pub(crate) fn parse_decoder_pass(text: &str) -> Result<(usize, f64), String> {
+    let (steps, lr) = text.split_once(':').ok_or_else(|| format!("{text:?}: a pass is STEPS:LR, e.g. 4500:1e-4"))?;
+    let steps = steps.trim().parse().map_err(|e| format!("{text:?}: steps {steps:?}: {e}"))?;
+    let lr = lr.trim().parse().map_err(|e| format!("{text:?}: learning rate {lr:?}: {e}"))?;
+    Ok((steps, lr))
 }
 
 /// The step counts of every UNet phase from `--phase-steps`: the first phases' counts, 0 for
@@ -264,11 +284,23 @@ fn checkpoint_step(stage_dir: &Path) -> Option<usize> {
 /// run's. `phase_steps` replaces the schedule's step counts of the first UNet phases (at least
 /// the three stages'); a phase after the three stages with 0 steps, or after the last count, is
 /// left out.
-pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[usize]>) -> Result<(), String> {
+pub(crate) fn run(out: &Path, quick: bool, resume: bool, overrides: &Overrides) -> Result<(), String> {
     let mut schedule = if quick { Schedule::quick() } else { Schedule::full() };
-    if let Some(steps) = phase_steps {
+    if let Some(steps) = &overrides.phase_steps {
         schedule.stage_steps = phase_steps_of(steps)?;
     }
+    if let Some(passes) = &overrides.decoder_passes {
+        if passes.is_empty() || passes.iter().any(|&(steps, lr)| steps == 0 || !(lr > 0.0 && lr.is_finite())) {
+            return Err(format!(
+                "--decoder-passes: one or more STEPS:LR pairs, each with at least 1 step and a positive \
+                 learning rate (found {passes:?})"
+            ));
+        }
+        schedule.decoder_passes = passes.clone();
+    }
+    let unet_config = overrides.unet_config.clone().unwrap_or_else(|| config_dir().join("unet").join("config.json"));
+    // Read now, so that a wrong path fails before the hours of training, not after the VAE.
+    let unet_config = UNetConfig::from_file(&unet_config).map_err(|e| format!("--unet-config: {e}"))?;
     let root = crate::workspace_root();
     let started = Instant::now();
     let device = wonder3d::diffusion::default_device();
@@ -305,17 +337,16 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[u
             eprintln!("  the recipe's scheduler config changed: the UNet trains again from stage 1");
             retrain = true;
             let (_, vae, clip, _) = earlier.into_parts();
-            let unet_config = UNetConfig::from_file(config_dir().join("unet").join("config.json")).map_err(err)?;
             let unet = UNet::random(&unet_config, 3, &device).map_err(err)?;
             MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)?
         } else {
             earlier
         }
     } else {
-        fresh_model(&set, &schedule, scheduler, &device, started)?
+        fresh_model(&set, &schedule, &unet_config, scheduler, &device, started)?
     };
 
-    // 4. The decoder, sharpened on the latents of the frozen encoder, in two passes. It
+    // 4. The decoder, sharpened on the latents of the frozen encoder, in passes. It
     // depends on the VAE alone, not on the UNet, so it trains on a thread of its own beside
     // the UNet's phases: the two share the cores, and each fills the other's serial gaps
     // (docs/training.md). Its result is written to `decoder/` once complete.
@@ -334,7 +365,7 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[u
         );
         DecoderTune::Done(Box::new(Vae::from_dir(&decoder_dir, &device).map_err(err)?))
     } else {
-        let passes: Vec<(usize, f64)> = schedule.decoder_steps.into_iter().zip(schedule.decoder_lr).collect();
+        let passes = schedule.decoder_passes.clone();
         let (vae, set) = (pipeline.vae().clone(), set.clone());
         let dir = decoder_dir.clone();
         DecoderTune::Running(
@@ -484,8 +515,11 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[u
         "schedule": {
             "samples_per_mesh": schedule.samples, "size": schedule.size, "vae_steps": schedule.vae_steps,
             "stage_steps": schedule.stage_steps, "stage_warmup": schedule.stage_warmup, "stage_lr": schedule.stage_lr,
-            "objects_per_batch": schedule.objects_per_batch, "decoder_steps": schedule.decoder_steps,
-            "decoder_lr": schedule.decoder_lr, "min_snr_gamma": schedule.min_snr_gamma,
+            "objects_per_batch": schedule.objects_per_batch,
+            "decoder_steps": schedule.decoder_passes.iter().map(|p| p.0).collect::<Vec<_>>(),
+            "decoder_lr": schedule.decoder_passes.iter().map(|p| p.1).collect::<Vec<_>>(),
+            "min_snr_gamma": schedule.min_snr_gamma,
+            "unet_block_out_channels": pipeline.unet().config().block_out_channels,
             "phases": PHASES.iter().map(|p| serde_json::json!({
                 "dir": p.dir, "stage": p.stage.number(), "train_all": p.train_all, "white_background": p.white,
                 "seed": p.seed, "ema_decay": p.ema_decay, "cool_down": p.cool_down,
@@ -513,6 +547,7 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, phase_steps: Option<&[u
 fn fresh_model(
     set: &TrainingSet,
     schedule: &Schedule,
+    unet_config: &UNetConfig,
     scheduler: SchedulerConfig,
     device: &wonder3d::diffusion::Device,
     started: Instant,
@@ -553,8 +588,7 @@ fn fresh_model(
     let clip_config =
         ClipVisionConfig::from_file(config_dir().join("image_encoder").join("config.json")).map_err(err)?;
     let clip = ClipVision::random(&clip_config, 2, device).map_err(err)?;
-    let unet_config = UNetConfig::from_file(config_dir().join("unet").join("config.json")).map_err(err)?;
-    let unet = UNet::random(&unet_config, 3, device).map_err(err)?;
+    let unet = UNet::random(unet_config, 3, device).map_err(err)?;
     MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)
 }
 

@@ -208,7 +208,7 @@ pub(crate) fn attention_backward(
                     }
                     // dV_j (+)= pᵀ · dO_i.
                     gemm_f32(
-                        MatMut { data: &mut g.dv[k0 * d..], rows: n, cols: d, row_stride: d, col_stride: 1 },
+                        MatMut { data: &mut g.dv[k0..], rows: n, cols: d, row_stride: 1, col_stride: shape.keys },
                         MatRef { data: p, rows: n, cols: rows, row_stride: 1, col_stride: n },
                         do_view,
                         q0 > 0,
@@ -229,7 +229,7 @@ pub(crate) fn attention_backward(
                     }
                     // dQ_i (+)= scale · ds · K_j.
                     gemm_f32(
-                        MatMut { data: &mut g.dq[q0 * d..], rows, cols: d, row_stride: d, col_stride: 1 },
+                        MatMut { data: &mut g.dq[q0..], rows, cols: d, row_stride: 1, col_stride: shape.queries },
                         MatRef { data: dp, rows, cols: n, row_stride: n, col_stride: 1 },
                         MatRef { data: k_block, rows: n, cols: d, row_stride: width, col_stride: 1 },
                         k0 > 0,
@@ -237,7 +237,7 @@ pub(crate) fn attention_backward(
                     );
                     // dK_j (+)= scale · dsᵀ · Q_i.
                     gemm_f32(
-                        MatMut { data: &mut g.dk[k0 * d..], rows: n, cols: d, row_stride: d, col_stride: 1 },
+                        MatMut { data: &mut g.dk[k0..], rows: n, cols: d, row_stride: 1, col_stride: shape.keys },
                         MatRef { data: dp, rows: n, cols: rows, row_stride: 1, col_stride: n },
                         q_view,
                         q0 > 0,
@@ -260,7 +260,8 @@ pub(crate) fn attention_backward(
     (dq, dk, dv)
 }
 
-/// One (sequence, head) unit's gradients, `[tokens, head_dim]` each.
+/// One (sequence, head) unit's gradients, `[head_dim, tokens]` each (column-major per token,
+/// so that their GEMMs' rows are tokens, not the head's few channels).
 struct HeadGradients {
     dq: Vec<f32>,
     dk: Vec<f32>,
@@ -276,11 +277,14 @@ struct BackwardScratch {
     lse: Vec<f32>,
 }
 
-/// Copies a head's `[tokens, d]` values into columns `col..col + d` of a token-major sequence
+/// Copies a head's `[d, tokens]` values into columns `col..col + d` of a token-major sequence
 /// of rows `width` wide.
 fn scatter_head(seq: &mut [f32], head: &[f32], width: usize, col: usize, d: usize) {
-    for (row, values) in seq.chunks_exact_mut(width).zip(head.chunks_exact(d)) {
-        row[col..col + d].copy_from_slice(values);
+    let tokens = seq.len() / width.max(1);
+    for (c, values) in head.chunks_exact(tokens.max(1)).take(d).enumerate() {
+        for (row, &v) in seq.chunks_exact_mut(width).zip(values) {
+            row[col + c] = v;
+        }
     }
 }
 
@@ -288,6 +292,7 @@ fn scatter_head(seq: &mut [f32], head: &[f32], width: usize, col: usize, d: usiz
 #[derive(Default)]
 struct Scratch {
     scores: Vec<f32>,
+    acc: Vec<f32>,
     row_max: Vec<f32>,
     row_sum: Vec<f32>,
 }
@@ -310,6 +315,10 @@ fn query_block_head(
     let (width, d) = (shape.width(), shape.head_dim);
     let col = head * d;
     scratch.scores.resize(rows * KEY_BLOCK, 0.0);
+    // The head's unnormalised output, column-major (`acc[c·rows + i]`): the GEMM's rows are
+    // then the block's queries, not the head's few channels, so its kernels run full width.
+    scratch.acc.clear();
+    scratch.acc.resize(rows * d, 0.0);
     scratch.row_max.clear();
     scratch.row_max.resize(rows, f32::NEG_INFINITY);
     scratch.row_sum.clear();
@@ -337,16 +346,16 @@ fn query_block_head(
                 let correction = exp_scalar(m_old - m_new);
                 scratch.row_sum[i] = scratch.row_sum[i] * correction + block_sum;
                 if correction != 1.0 {
-                    for o in &mut out_rows[i * width + col..i * width + col + d] {
+                    for o in scratch.acc[i..].iter_mut().step_by(rows) {
                         *o *= correction;
                     }
                 }
             }
             scratch.row_max[i] = m_new;
         }
-        // out_h[rows × d] (+)= P[rows × n] · V_h[n × d].
+        // acc[rows × d] (+)= P[rows × n] · V_h[n × d].
         gemm_f32(
-            MatMut { data: &mut out_rows[col..], rows, cols: d, row_stride: width, col_stride: 1 },
+            MatMut { data: &mut scratch.acc, rows, cols: d, row_stride: 1, col_stride: rows },
             MatRef { data: scores, rows, cols: n, row_stride: n, col_stride: 1 },
             MatRef { data: &v_seq[k0 * width + col..], rows: n, cols: d, row_stride: width, col_stride: 1 },
             !first,
@@ -355,8 +364,10 @@ fn query_block_head(
     }
     for (i, &sum) in scratch.row_sum.iter().enumerate() {
         let inv = 1.0 / sum;
-        for o in &mut out_rows[i * width + col..i * width + col + d] {
-            *o *= inv;
+        for (o, &a) in
+            out_rows[i * width + col..i * width + col + d].iter_mut().zip(scratch.acc[i..].iter().step_by(rows))
+        {
+            *o = a * inv;
         }
     }
 }
@@ -378,15 +389,33 @@ fn max_of(row: &[f32]) -> f32 {
     lanes.iter().fold(tail, |m, &x| m.max(x))
 }
 
+/// Lanes of [`exp_shifted_sum`]'s sum: one AVX-512 register (the same lanes, and so the same
+/// bits, whichever instructions the CPU has).
+const EXP_LANES: usize = 16;
+
 /// Replaces every `x` of `row` by `exp(x − shift)` and returns their sum; `shift` is at least
 /// the row's maximum, so every argument is ≤ 0.
 fn exp_shifted_sum(row: &mut [f32], shift: f32) -> f32 {
     #[cfg(target_arch = "x86_64")]
-    if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
-        // SAFETY: the CPU has the features the function is compiled for (checked just above).
-        #[allow(unsafe_code)]
-        return unsafe { exp_shifted_sum_avx2(row, shift) };
+    {
+        if std::is_x86_feature_detected!("avx512f") {
+            // SAFETY: the CPU has the feature the function is compiled for (checked just above).
+            #[allow(unsafe_code)]
+            return unsafe { exp_shifted_sum_avx512(row, shift) };
+        }
+        if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
+            // SAFETY: as above.
+            #[allow(unsafe_code)]
+            return unsafe { exp_shifted_sum_avx2(row, shift) };
+        }
     }
+    exp_shifted_sum_portable(row, shift)
+}
+
+/// [`exp_shifted_sum_portable`] compiled for AVX-512 (sixteen lanes per instruction).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+fn exp_shifted_sum_avx512(row: &mut [f32], shift: f32) -> f32 {
     exp_shifted_sum_portable(row, shift)
 }
 
@@ -399,8 +428,8 @@ fn exp_shifted_sum_avx2(row: &mut [f32], shift: f32) -> f32 {
 
 #[inline(always)]
 fn exp_shifted_sum_portable(row: &mut [f32], shift: f32) -> f32 {
-    let mut lanes = [0.0f32; LANES];
-    let mut chunks = row.chunks_exact_mut(LANES);
+    let mut lanes = [0.0f32; EXP_LANES];
+    let mut chunks = row.chunks_exact_mut(EXP_LANES);
     for chunk in &mut chunks {
         for (s, x) in lanes.iter_mut().zip(chunk.iter_mut()) {
             *x = exp_scalar(*x - shift);

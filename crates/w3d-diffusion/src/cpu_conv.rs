@@ -212,6 +212,20 @@ fn columns<'a>(x_n: &'a [f32], shape: ConvShape, buffer: &'a mut Vec<f32>) -> &'
     }
     let (ho, wo) = shape.output().expect("checked");
     let (k, h, w) = (shape.kernel, shape.height, shape.width);
+    if let Some(taps) = SameSizeTaps::of(shape) {
+        // Every entry is written below, so the buffer's old values need no clearing.
+        buffer.resize(shape.patch() * ho * wo, 0.0);
+        for (row, cols) in buffer.chunks_exact_mut(h * w).enumerate() {
+            let c = row / (k * k);
+            let tap = taps.tap(row % (k * k));
+            let plane = &x_n[c * h * w..(c + 1) * h * w];
+            cols[..tap.dst.start].fill(0.0);
+            cols[tap.dst.clone()].copy_from_slice(&plane[tap.src.clone()]);
+            cols[tap.dst.end..].fill(0.0);
+            tap.clear_wrapped(cols, w);
+        }
+        return buffer;
+    }
     buffer.clear();
     buffer.resize(shape.patch() * ho * wo, 0.0);
     for (row, cols) in buffer.chunks_exact_mut(ho * wo).enumerate() {
@@ -236,9 +250,23 @@ fn columns<'a>(x_n: &'a [f32], shape: ConvShape, buffer: &'a mut Vec<f32>) -> &'
 
 /// The adjoint of [`columns`]: adds each column-matrix entry onto the input pixel it was read
 /// from.
-fn scatter_columns(d_cols: &[f32], dx_n: &mut [f32], shape: ConvShape) {
+fn scatter_columns(d_cols: &mut [f32], dx_n: &mut [f32], shape: ConvShape) {
     let (ho, wo) = shape.output().expect("checked");
     let (k, h, w) = (shape.kernel, shape.height, shape.width);
+    if let Some(taps) = SameSizeTaps::of(shape) {
+        // Each tap's entries in the order the general loop below adds them, so the sums are
+        // the same bits; the wrapped entries are cleared first so that they add nothing.
+        for (row, cols) in d_cols.chunks_exact_mut(h * w).enumerate() {
+            let c = row / (k * k);
+            let tap = taps.tap(row % (k * k));
+            tap.clear_wrapped(cols, w);
+            let plane = &mut dx_n[c * h * w..(c + 1) * h * w];
+            for (x, &v) in plane[tap.src.clone()].iter_mut().zip(&cols[tap.dst.clone()]) {
+                *x += v;
+            }
+        }
+        return;
+    }
     for (row, cols) in d_cols.chunks_exact(ho * wo).enumerate() {
         let (c, ky, kx) = (row / (k * k), row / k % k, row % k);
         let plane = &mut dx_n[c * h * w..(c + 1) * h * w];
@@ -257,6 +285,63 @@ fn scatter_columns(d_cols: &[f32], dx_n: &mut [f32], shape: ConvShape) {
                     *x += v;
                 }
             }
+        }
+    }
+}
+
+/// The kernel taps of a stride-1 convolution whose output has the input's size (a 3×3 kernel
+/// with padding 1): each tap's column-matrix row is the input plane shifted by a fixed offset,
+/// so it is one contiguous copy, with the entries whose horizontal shift wrapped round to the
+/// neighbouring image row cleared after. At the UNet's small levels (8×8 pixels) copying row by
+/// row cost a library call per eight values.
+struct SameSizeTaps {
+    kernel: usize,
+    padding: usize,
+    height: usize,
+    width: usize,
+}
+
+/// One tap of [`SameSizeTaps`]: column-matrix entries `dst` read input pixels `src` (a range of
+/// the same length, in flattened `h·w` order); the others read the zero padding.
+struct Tap {
+    dst: std::ops::Range<usize>,
+    src: std::ops::Range<usize>,
+    /// Horizontal offset of the tap in pixels (`kx − padding`).
+    dx: isize,
+}
+
+impl SameSizeTaps {
+    fn of(shape: ConvShape) -> Option<Self> {
+        let same = shape.stride == 1 && shape.kernel == 2 * shape.padding + 1 && shape.kernel > 1;
+        same.then_some(Self { kernel: shape.kernel, padding: shape.padding, height: shape.height, width: shape.width })
+    }
+
+    /// Tap `t = ky·k + kx`.
+    fn tap(&self, t: usize) -> Tap {
+        let (ky, kx) = (t / self.kernel, t % self.kernel);
+        let p = self.padding as isize;
+        let (dy, dx) = (ky as isize - p, kx as isize - p);
+        let n = self.height * self.width;
+        let shift = dy * self.width as isize + dx;
+        // An image smaller than the kernel's reach leaves a tap nothing but padding.
+        let offset = shift.unsigned_abs().min(n);
+        let len = n - offset;
+        let (dst0, src0) = if shift >= 0 { (0, offset) } else { (offset, 0) };
+        Tap { dst: dst0..dst0 + len, src: src0..src0 + len, dx }
+    }
+}
+
+impl Tap {
+    /// Zeroes the entries of `cols` (one tap's row, `w` wide image rows) whose source pixel lies
+    /// beyond the left or right edge: the flat shift took them from the neighbouring row.
+    fn clear_wrapped(&self, cols: &mut [f32], w: usize) {
+        let edge = self.dx.unsigned_abs().min(w);
+        if edge == 0 {
+            return;
+        }
+        for row in cols.chunks_exact_mut(w) {
+            let wrapped = if self.dx < 0 { &mut row[..edge] } else { &mut row[w - edge..] };
+            wrapped.fill(0.0);
         }
     }
 }

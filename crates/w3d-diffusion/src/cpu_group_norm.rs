@@ -56,7 +56,7 @@ pub(crate) fn group_norm(
     silu: bool,
 ) -> (Vec<f32>, GroupStats) {
     check(x, weight, bias, shape);
-    let (len, gc, pixels) = (shape.group_len(), shape.group_channels(), shape.pixels);
+    let len = shape.group_len();
     let mut out = vec![0.0f32; x.len()];
     let mut mean = vec![0.0f32; shape.batch * shape.groups];
     let mut rstd = vec![0.0f32; shape.batch * shape.groups];
@@ -68,19 +68,8 @@ pub(crate) fn group_norm(
         .zip(mean.par_iter_mut().zip(rstd.par_iter_mut()))
         .enumerate()
         .for_each(|(unit, ((y, x), (mu, r)))| {
-            let m = x.iter().map(|&v| f64::from(v)).sum::<f64>() / len as f64;
-            let var = x.iter().map(|&v| (f64::from(v) - m).powi(2)).sum::<f64>() / len as f64;
-            let inv = 1.0 / (var + eps).sqrt();
-            (*mu, *r) = (m as f32, inv as f32);
-            let g = unit % shape.groups;
-            for (ci, (y, x)) in y.chunks_exact_mut(pixels).zip(x.chunks_exact(pixels)).enumerate() {
-                let c = g * gc + ci;
-                let (scale, shift) = (weight[c] * *r, bias[c] - *mu * *r * weight[c]);
-                for (y, &x) in y.iter_mut().zip(x) {
-                    let v = x * scale + shift;
-                    *y = if silu { v * sigmoid(v) } else { v };
-                }
-            }
+            let unit = ForwardUnit { x, y, weight, bias, shape, group: unit % shape.groups, eps };
+            (*mu, *r) = simd_dispatch!(forward_unit(unit, silu));
         });
     (out, GroupStats { mean, rstd })
 }
@@ -102,7 +91,7 @@ pub(crate) fn group_norm_backward(
 ) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     check(x, weight, bias, shape);
     assert_eq!(d_out.len(), x.len(), "output gradient length");
-    let (len, gc, pixels) = (shape.group_len(), shape.group_channels(), shape.pixels);
+    let (len, gc) = (shape.group_len(), shape.group_channels());
     let mut dx = vec![0.0f32; x.len()];
     if len == 0 {
         return (dx, vec![0.0; shape.channels], vec![0.0; shape.channels]);
@@ -113,45 +102,24 @@ pub(crate) fn group_norm_backward(
         .zip(x.par_chunks(len).zip(d_out.par_chunks(len)))
         .enumerate()
         .map_init(Vec::new, |dy_buf, (unit, (dx, (x, d_out)))| {
-            let g = unit % shape.groups;
-            let (mu, r) = (stats.mean[unit], stats.rstd[unit]);
             // dy: the gradient at the normalisation's output (through SiLU when present).
             dy_buf.clear();
             dy_buf.extend_from_slice(d_out);
             let (mut dw, mut db) = (vec![0.0f32; gc], vec![0.0f32; gc]);
-            let (mut sum_dxhat, mut sum_dxhat_xhat) = (0.0f64, 0.0f64);
-            for (ci, (dy, x)) in dy_buf.chunks_exact_mut(pixels).zip(x.chunks_exact(pixels)).enumerate() {
-                let c = g * gc + ci;
-                let (w, b) = (weight[c], bias[c]);
-                let (mut dw_c, mut db_c, mut s1, mut s2) = (0.0f64, 0.0f64, 0.0f64, 0.0f64);
-                for (dy, &x) in dy.iter_mut().zip(x) {
-                    let xhat = (x - mu) * r;
-                    if silu {
-                        let v = xhat * w + b;
-                        let s = sigmoid(v);
-                        *dy *= s * (1.0 + v * (1.0 - s));
-                    }
-                    dw_c += f64::from(*dy * xhat);
-                    db_c += f64::from(*dy);
-                    let dxhat = *dy * w;
-                    s1 += f64::from(dxhat);
-                    s2 += f64::from(dxhat * xhat);
-                }
-                (dw[ci], db[ci]) = (dw_c as f32, db_c as f32);
-                sum_dxhat += s1;
-                sum_dxhat_xhat += s2;
-            }
-            // dx = rstd · (dx̂ − mean(dx̂) − x̂ · mean(dx̂ · x̂)) over the group.
-            let (m1, m2) = ((sum_dxhat / len as f64) as f32, (sum_dxhat_xhat / len as f64) as f32);
-            for (ci, (dx, (dy, x))) in
-                dx.chunks_exact_mut(pixels).zip(dy_buf.chunks_exact(pixels).zip(x.chunks_exact(pixels))).enumerate()
-            {
-                let w = weight[g * gc + ci];
-                for (dx, (&dy, &x)) in dx.iter_mut().zip(dy.iter().zip(x)) {
-                    let xhat = (x - mu) * r;
-                    *dx = r * (dy * w - m1 - xhat * m2);
-                }
-            }
+            let unit = BackwardUnit {
+                x,
+                dy: dy_buf,
+                dx,
+                dw: &mut dw,
+                db: &mut db,
+                weight,
+                bias,
+                shape,
+                group: unit % shape.groups,
+                mean: stats.mean[unit],
+                rstd: stats.rstd[unit],
+            };
+            simd_dispatch!(backward_unit(unit, silu));
             (dw, db)
         })
         .collect();
@@ -162,6 +130,209 @@ pub(crate) fn group_norm_backward(
         db[c0..c0 + gc].iter_mut().zip(pb).for_each(|(s, v)| *s += v);
     }
     (dx, dw, db)
+}
+
+/// Calls `$name::<true|false>` (by `$silu`) compiled for the widest vector instructions the
+/// CPU has. The kernels' sums run in [`LANES`] fixed lanes and Rust never fuses a multiply and
+/// an add on its own, so every variant computes the same bits; only the speed differs.
+macro_rules! simd_dispatch {
+    ($name:ident($unit:expr, $silu:expr)) => {{
+        let unit = $unit;
+        #[cfg(target_arch = "x86_64")]
+        {
+            if std::is_x86_feature_detected!("avx512f") {
+                // SAFETY: the CPU has the feature the variant is compiled for (checked here).
+                #[allow(unsafe_code)]
+                unsafe {
+                    return_variant!(simd::avx512, $name, unit, $silu)
+                }
+            } else if std::is_x86_feature_detected!("avx2") {
+                // SAFETY: as above.
+                #[allow(unsafe_code)]
+                unsafe {
+                    return_variant!(simd::avx2, $name, unit, $silu)
+                }
+            } else {
+                return_variant!(self, $name, unit, $silu)
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            return_variant!(self, $name, unit, $silu)
+        }
+    }};
+}
+use simd_dispatch;
+
+/// The `$silu` variant of `$module::$name` applied to `$unit`.
+macro_rules! return_variant {
+    ($module:path, $name:ident, $unit:expr, $silu:expr) => {{
+        use $module as m;
+        if $silu { m::$name::<true>($unit) } else { m::$name::<false>($unit) }
+    }};
+}
+use return_variant;
+
+/// The kernels compiled for AVX-512 and AVX2 (the portable ones, with the target's features
+/// enabled so the compiler vectorises their lanes that wide).
+#[cfg(target_arch = "x86_64")]
+mod simd {
+    macro_rules! variant {
+        ($module:ident, $features:literal) => {
+            pub(super) mod $module {
+                use super::super::{BackwardUnit, ForwardUnit};
+
+                /// [`super::super::forward_unit`] with the module's target features.
+                #[target_feature(enable = $features)]
+                pub(crate) fn forward_unit<const SILU: bool>(unit: ForwardUnit<'_>) -> (f32, f32) {
+                    super::super::forward_unit::<SILU>(unit)
+                }
+
+                /// [`super::super::backward_unit`] with the module's target features.
+                #[target_feature(enable = $features)]
+                pub(crate) fn backward_unit<const SILU: bool>(unit: BackwardUnit<'_>) {
+                    super::super::backward_unit::<SILU>(unit)
+                }
+            }
+        };
+    }
+    variant!(avx512, "avx512f");
+    variant!(avx2, "avx2");
+}
+
+/// Independent accumulators of the kernels' sums: one SIMD register's worth of f64 on
+/// AVX-512 (a single accumulator would serialise the loop and keep it scalar).
+const LANES: usize = 8;
+
+/// One (image, group) of the forward.
+struct ForwardUnit<'a> {
+    x: &'a [f32],
+    y: &'a mut [f32],
+    weight: &'a [f32],
+    bias: &'a [f32],
+    shape: GroupNormShape,
+    group: usize,
+    eps: f64,
+}
+
+/// The forward of one unit: its mean and reciprocal standard deviation (returned), then the
+/// normalised, scaled and shifted values (through SiLU with `SILU`).
+#[inline(always)]
+fn forward_unit<const SILU: bool>(u: ForwardUnit<'_>) -> (f32, f32) {
+    let (len, gc, pixels) = (u.shape.group_len(), u.shape.group_channels(), u.shape.pixels);
+    let m = lane_sum(u.x, f64::from) / len as f64;
+    let var = lane_sum(u.x, |v| (f64::from(v) - m) * (f64::from(v) - m)) / len as f64;
+    let (mu, r) = (m as f32, (1.0 / (var + u.eps).sqrt()) as f32);
+    for (ci, (y, x)) in u.y.chunks_exact_mut(pixels).zip(u.x.chunks_exact(pixels)).enumerate() {
+        let c = u.group * gc + ci;
+        let (scale, shift) = (u.weight[c] * r, u.bias[c] - mu * r * u.weight[c]);
+        for (y, &x) in y.iter_mut().zip(x) {
+            let v = x * scale + shift;
+            *y = if SILU { v * sigmoid(v) } else { v };
+        }
+    }
+    (mu, r)
+}
+
+/// `Σ f(v)` over `values` in f64, in [`LANES`] interleaved partial sums added at the end.
+#[inline(always)]
+fn lane_sum(values: &[f32], f: impl Fn(f32) -> f64) -> f64 {
+    let mut lanes = [0.0f64; LANES];
+    let mut chunks = values.chunks_exact(LANES);
+    for chunk in &mut chunks {
+        for (s, &v) in lanes.iter_mut().zip(chunk) {
+            *s += f(v);
+        }
+    }
+    chunks.remainder().iter().fold(lanes.iter().sum::<f64>(), |s, &v| s + f(v))
+}
+
+/// One (image, group) of the backward.
+struct BackwardUnit<'a> {
+    x: &'a [f32],
+    /// The output's gradient on entry; the gradient at the normalisation's output after.
+    dy: &'a mut [f32],
+    dx: &'a mut [f32],
+    /// This unit's channels' shares of the weight's and the bias's gradients.
+    dw: &'a mut [f32],
+    db: &'a mut [f32],
+    weight: &'a [f32],
+    bias: &'a [f32],
+    shape: GroupNormShape,
+    group: usize,
+    mean: f32,
+    rstd: f32,
+}
+
+/// What one channel's values are normalised with.
+#[derive(Clone, Copy)]
+struct ChannelCoefficients {
+    mean: f32,
+    rstd: f32,
+    weight: f32,
+    bias: f32,
+}
+
+/// One block of at most [`LANES`] values of a channel in the backward: `dy` through SiLU (with
+/// `SILU`) in place, and the four per-lane sums of [`backward_unit`]. Each step is its own loop
+/// over the block, a shape the compiler turns into vector instructions; a function rather than
+/// a closure so that it is compiled with the calling variant's target features.
+#[inline(always)]
+fn backward_block<const SILU: bool>(dy: &mut [f32], x: &[f32], c: ChannelCoefficients, sums: &mut [[f64; LANES]; 4]) {
+    let mut xhat = [0.0f32; LANES];
+    for (h, &x) in xhat.iter_mut().zip(x) {
+        *h = (x - c.mean) * c.rstd;
+    }
+    if SILU {
+        for (dy, &h) in dy.iter_mut().zip(&xhat) {
+            let v = h * c.weight + c.bias;
+            let s = sigmoid(v);
+            *dy *= s * (1.0 + v * (1.0 - s));
+        }
+    }
+    for (lane, (&dy, &h)) in dy.iter().zip(&xhat).enumerate() {
+        let dxhat = dy * c.weight;
+        sums[0][lane] += f64::from(dy * h);
+        sums[1][lane] += f64::from(dy);
+        sums[2][lane] += f64::from(dxhat);
+        sums[3][lane] += f64::from(dxhat * h);
+    }
+}
+
+/// The backward of one unit: `dy` through SiLU (with `SILU`), the channels' weight and bias
+/// gradients, then `dx = rstd · (dx̂ − mean(dx̂) − x̂ · mean(dx̂ · x̂))` over the group.
+#[inline(always)]
+fn backward_unit<const SILU: bool>(u: BackwardUnit<'_>) {
+    let (len, gc, pixels) = (u.shape.group_len(), u.shape.group_channels(), u.shape.pixels);
+    let (mu, r) = (u.mean, u.rstd);
+    let (mut sum_dxhat, mut sum_dxhat_xhat) = (0.0f64, 0.0f64);
+    for (ci, (dy, x)) in u.dy.chunks_exact_mut(pixels).zip(u.x.chunks_exact(pixels)).enumerate() {
+        let c = u.group * gc + ci;
+        let (w, b) = (u.weight[c], u.bias[c]);
+        // Per lane: Σ dy·x̂, Σ dy, Σ dx̂, Σ dx̂·x̂ (dx̂ = dy·w).
+        let mut sums = [[0.0f64; LANES]; 4];
+        let coefficients = ChannelCoefficients { mean: mu, rstd: r, weight: w, bias: b };
+        let mut dy_chunks = dy.chunks_exact_mut(LANES);
+        let mut x_chunks = x.chunks_exact(LANES);
+        for (dy, x) in (&mut dy_chunks).zip(&mut x_chunks) {
+            backward_block::<SILU>(dy, x, coefficients, &mut sums);
+        }
+        backward_block::<SILU>(dy_chunks.into_remainder(), x_chunks.remainder(), coefficients, &mut sums);
+        let [dw_c, db_c, s1, s2] = sums.map(|lanes| lanes.iter().sum::<f64>());
+        (u.dw[ci], u.db[ci]) = (dw_c as f32, db_c as f32);
+        sum_dxhat += s1;
+        sum_dxhat_xhat += s2;
+    }
+    let (m1, m2) = ((sum_dxhat / len as f64) as f32, (sum_dxhat_xhat / len as f64) as f32);
+    for (ci, (dx, (dy, x))) in
+        u.dx.chunks_exact_mut(pixels).zip(u.dy.chunks_exact(pixels).zip(u.x.chunks_exact(pixels))).enumerate()
+    {
+        let w = u.weight[u.group * gc + ci];
+        for (dx, (&dy, &x)) in dx.iter_mut().zip(dy.iter().zip(x)) {
+            let xhat = (x - mu) * r;
+            *dx = r * (dy * w - m1 - xhat * m2);
+        }
+    }
 }
 
 fn check(x: &[f32], weight: &[f32], bias: &[f32], shape: GroupNormShape) {

@@ -1,8 +1,8 @@
 //! The crate's CPU kernels as differentiable operations on Burn's flex backend: multi-head
-//! attention ([`crate::cpu_attention`]), 2-D convolution ([`crate::cpu_conv`]) and group
-//! normalisation with its SiLU ([`crate::cpu_group_norm`]) and the feed-forward's GEGLU gate
-//! ([`crate::cpu_geglu`]), each one node of Burn's autodiff
-//! graph with a hand-written backward, so that training on the CPU neither differentiates
+//! attention ([`crate::cpu_attention`]), 2-D convolution ([`crate::cpu_conv`]), group
+//! normalisation with its SiLU ([`crate::cpu_group_norm`]), the feed-forward's GEGLU gate
+//! ([`crate::cpu_geglu`]) and the fully connected layer ([`crate::cpu_linear`]), each one node
+//! of Burn's autodiff graph with a hand-written backward, so that training on the CPU neither differentiates
 //! through the dozen tensor operations of Burn's attention or group norm nor computes a
 //! convolution's input gradient with flex's transposed convolution (`docs/benchmarks.md`,
 //! "Training step").
@@ -34,6 +34,7 @@ use crate::cpu_attention::{AttentionShape, attention_backward, attention_with_ls
 use crate::cpu_conv::{ConvShape, conv2d, conv2d_backward};
 use crate::cpu_geglu::{geglu, geglu_backward};
 use crate::cpu_group_norm::{GroupNormShape, GroupStats, group_norm, group_norm_backward};
+use crate::cpu_linear::{LinearShape, linear, linear_backward};
 
 /// Where the fused attention applies: `q`, `k` and `v` are f32 flex tensors under autodiff with
 /// one checkpointing strategy (returned) and at least one query and one key.
@@ -152,6 +153,37 @@ pub(crate) fn geglu_op(projection: Tensor<3>, strategy: GradientCheckpointingStr
     match strategy {
         GradientCheckpointingStrategy::Balanced => fused_geglu::<BalancedCheckpointing>(projection),
         GradientCheckpointingStrategy::Disabled => fused_geglu::<NoCheckpointing>(projection),
+    }
+}
+
+/// Where the fused fully connected layer applies: every tensor an f32 flex tensor under
+/// autodiff with one checkpointing strategy (returned), `x` `[rows, in]`, the weight `[in,
+/// out]` and the bias `[out]`.
+pub(crate) fn linear_applies(
+    x: &Tensor<2>,
+    weight: &Tensor<2>,
+    bias: Option<&Tensor<1>>,
+) -> Option<GradientCheckpointingStrategy> {
+    let mut tensors = vec![autodiff_on_flex(x), autodiff_on_flex(weight)];
+    tensors.extend(bias.map(autodiff_on_flex));
+    let strategy = shared_strategy(&tensors)?;
+    let ([_, d_in], [w_in, d_out]) = (x.dims(), weight.dims());
+    (d_in == w_in && bias.is_none_or(|b| b.dims() == [d_out])).then_some(strategy)
+}
+
+/// `x·W + b` (`[rows, in]` → `[rows, out]`, the weight `[in, out]`) as a single autodiff
+/// operation; `strategy` from [`linear_applies`].
+pub(crate) fn linear_op(
+    x: Tensor<2>,
+    weight: Tensor<2>,
+    bias: Option<Tensor<1>>,
+    strategy: GradientCheckpointingStrategy,
+) -> Tensor<2> {
+    let ([rows, d_in], [_, d_out]) = (x.dims(), weight.dims());
+    let shape = LinearShape { rows, d_in, d_out };
+    match strategy {
+        GradientCheckpointingStrategy::Balanced => fused_linear::<BalancedCheckpointing>(x, weight, bias, shape),
+        GradientCheckpointingStrategy::Disabled => fused_linear::<NoCheckpointing>(x, weight, bias, shape),
     }
 }
 
@@ -280,6 +312,53 @@ fn fused_conv2d<C: FlexAutodiff>(
     let result = match bias {
         Some(b) => record::<C, _, 3>(FusedConv2d::<3>, [x.node(), weight.node(), b.node()], state, out),
         None => record::<C, _, 2>(FusedConv2d::<2>, [x.node(), weight.node()], state, out),
+    };
+    C::from_primitive(result)
+}
+
+/// The fully connected layer's backward record: the input and weight (shared, not copied) and
+/// the shape.
+#[derive(Clone, Debug)]
+struct LinearState {
+    x: FlexTensor,
+    weight: FlexTensor,
+    shape: LinearShape,
+}
+
+/// The fully connected layer's node; `N` is 3 with a bias, 2 without (parents: input, weight,
+/// bias).
+#[derive(Debug)]
+struct FusedLinear<const N: usize>;
+
+impl<const N: usize> Backward<Flex, N> for FusedLinear<N> {
+    type State = LinearState;
+
+    fn backward(self, ops: Ops<Self::State, N>, grads: &mut Gradients, _checkpointer: &mut Checkpointer) {
+        let grad = contiguous(grads.consume::<Flex>(&ops.node));
+        let s = &ops.state;
+        let want = [0, 1, 2].map(|i| ops.parents.get(i).is_some_and(Option::is_some));
+        let [dx, dw, db] = linear_backward(f32s(&s.x), f32s(&s.weight), f32s(&grad), s.shape, want);
+        let parents = ops.parents.iter().map(|p| p.as_ref().map(|node| node.id));
+        register_grads(grads, parents, [(dx, shape_of(&s.x)), (dw, shape_of(&s.weight)), (db, [s.shape.d_out].into())]);
+    }
+}
+
+fn fused_linear<C: FlexAutodiff>(
+    x: Tensor<2>,
+    weight: Tensor<2>,
+    bias: Option<Tensor<1>>,
+    shape: LinearShape,
+) -> Tensor<2> {
+    let (x, weight) = (C::into_primitive(x), C::into_primitive(weight));
+    let bias = bias.map(C::into_primitive);
+    let (xp, wp) = (contiguous(x.primitive().clone()), contiguous(weight.primitive().clone()));
+    let bp = bias.as_ref().map(|b| contiguous(b.primitive().clone()));
+    let out = linear(f32s(&xp), f32s(&wp), bp.as_ref().map(f32s), shape);
+    let out = FlexTensor::from_data(TensorData::new(out, [shape.rows, shape.d_out]));
+    let state = || LinearState { x: xp.clone(), weight: wp.clone(), shape };
+    let result = match bias {
+        Some(b) => record::<C, _, 3>(FusedLinear::<3>, [x.node(), weight.node(), b.node()], state, out),
+        None => record::<C, _, 2>(FusedLinear::<2>, [x.node(), weight.node()], state, out),
     };
     C::from_primitive(result)
 }

@@ -50,6 +50,8 @@ mod cpu_conv;
 mod cpu_geglu;
 mod cpu_gemm;
 mod cpu_group_norm;
+mod cpu_linear;
+mod cpu_optim;
 pub mod device;
 pub mod enhancer;
 mod flex_autodiff;

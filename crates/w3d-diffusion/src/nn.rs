@@ -47,10 +47,19 @@ impl Linear {
         let dims = x.dims();
         let [d_in, d_out] = self.weight.dims();
         let rows = dims[..D - 1].iter().product();
-        let mut y = x.reshape([rows, d_in]).matmul(as_f32(self.weight.val()));
-        if let Some(b) = &self.bias {
-            y = y + b.val().unsqueeze::<2>();
-        }
+        let (x, weight) = (x.reshape([rows, d_in]), as_f32(self.weight.val()));
+        let bias = self.bias.as_ref().map(|b| b.val());
+        let y = match crate::flex_autodiff::linear_applies(&x, &weight, bias.as_ref()) {
+            // Training on the CPU: one differentiable node (`crate::cpu_linear`).
+            Some(strategy) => crate::flex_autodiff::linear_op(x, weight, bias, strategy),
+            None => {
+                let y = x.matmul(weight);
+                match bias {
+                    Some(b) => y + b.unsqueeze::<2>(),
+                    None => y,
+                }
+            }
+        };
         let mut out = dims;
         out[D - 1] = d_out;
         y.reshape(out)

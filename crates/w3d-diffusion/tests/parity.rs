@@ -23,6 +23,8 @@ mod group_norm;
 mod conv;
 #[path = "parity_cases/full_size.rs"]
 mod full_size;
+#[path = "parity_cases/linear.rs"]
+mod linear;
 // The IP-Adapter (enhancer) parity and error cases.
 #[path = "parity_cases/ip_adapter.rs"]
 mod ip_adapter;

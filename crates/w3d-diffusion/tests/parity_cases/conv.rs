@@ -18,6 +18,9 @@ fn im2col_matches_direct_convolution() {
         (4, 6, 9, 9, 3, 2, 0),
         (6, 3, 8, 5, 1, 1, 0),
         (3, 8, 12, 18, 6, 6, 0),
+        // Images smaller than the kernel's reach (taps that read only padding).
+        (3, 4, 1, 2, 3, 1, 1),
+        (3, 4, 2, 1, 5, 1, 2),
     ];
     for (name, device) in test_devices() {
         for (i, &(c_in, c_out, h, w, k, s, p)) in cases.iter().enumerate() {
@@ -51,6 +54,9 @@ fn training_convolution_gradients_match_burn_autodiff() {
         (4, 6, 9, 9, 3, 2, 0, false),
         (6, 3, 8, 5, 1, 1, 0, true),
         (3, 8, 12, 18, 6, 6, 0, false),
+        (3, 4, 1, 2, 3, 1, 1, true),
+        (3, 4, 2, 1, 5, 1, 2, false),
+        (4, 5, 6, 7, 5, 1, 2, true),
     ];
     for (name, device) in test_devices() {
         for strategy in [GradientCheckpointingStrategy::Disabled, GradientCheckpointingStrategy::Balanced] {
