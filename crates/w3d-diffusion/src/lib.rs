@@ -51,7 +51,6 @@ mod cpu_geglu;
 mod cpu_gemm;
 mod cpu_group_norm;
 mod cpu_linear;
-mod cpu_optim;
 pub mod device;
 pub mod enhancer;
 mod flex_autodiff;

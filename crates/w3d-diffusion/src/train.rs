@@ -34,11 +34,10 @@
 use std::collections::{HashMap, HashSet};
 
 use burn::module::{Module, ModuleMapper, ModuleVisitor, Param, ParamId};
-use burn::tensor::{DType, Device, GradientCheckpointingStrategy, Gradients, Tensor, TensorData};
+use burn::tensor::{Device, GradientCheckpointingStrategy, Gradients, Tensor, TensorData};
 use w3d_core::Error;
 
 use crate::config::SchedulerConfig;
-use crate::cpu_optim::{AdamWScalars, adamw_update, moving_average};
 use crate::scheduler::{DdimScheduler, Prediction, gaussian_noise};
 use crate::unet::UNet;
 use crate::weights::{NamedValues, Precision};
@@ -643,25 +642,7 @@ impl Trainer {
         self.unet.visit(&mut current);
         for (id, value) in current.out {
             let averaged = match self.ema.remove(&id) {
-                Some(ema) if decay > 0.0 => {
-                    let on_host =
-                        [&ema, &value].iter().all(|t| t.dtype() == DType::F32 && crate::nn::on_flex(&t.device()));
-                    if on_host {
-                        // One pass over the memory, bit-identical to the operations below.
-                        let device = ema.device();
-                        let mut average = ema.into_data();
-                        let value = value.into_data();
-                        let as_f32 = "f32 data (checked above)";
-                        moving_average(
-                            average.as_mut_slice::<f32>().expect(as_f32),
-                            value.as_slice::<f32>().expect(as_f32),
-                            decay,
-                        );
-                        Tensor::from_data(average, &device)
-                    } else {
-                        ema * decay + value * (1.0 - decay)
-                    }
-                }
+                Some(ema) if decay > 0.0 => ema * decay + value * (1.0 - decay),
                 _ => value,
             };
             self.ema.insert(id, averaged);
@@ -955,9 +936,6 @@ impl ModuleMapper for AdamW<'_> {
     fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
         let Some(grad) = self.grads.remove(&param.id) else { return param };
         let lr = (self.lr_of)(param.id);
-        if self.host_applies(&param, &grad) {
-            return self.update_on_host(param, grad, lr);
-        }
         let id = param.id;
         let (b1, b2) = self.betas;
         let grad = grad * self.clip;
@@ -981,62 +959,6 @@ impl ModuleMapper for AdamW<'_> {
             let inner = tensor.inner();
             let n = inner.shape().num_elements();
             let updated = Tensor::from_inner((inner.reshape([n]) * weight_decay - delta).reshape(dims));
-            match strategy {
-                Some(strategy) => updated.with_gradient_checkpointing_strategy(strategy),
-                None => updated,
-            }
-            .require_grad()
-        })
-    }
-}
-
-impl AdamW<'_> {
-    /// Whether the step of this parameter runs on its memory ([`crate::cpu_optim`]): an f32
-    /// parameter, gradient and moments on the flex backend.
-    fn host_applies<const D: usize>(&self, param: &Param<Tensor<D>>, grad: &Tensor<1>) -> bool {
-        let f32_on_flex = |t: &Tensor<1>| t.dtype() == DType::F32 && crate::nn::on_flex(&t.device());
-        let moments_fit = self.moments.get(&param.id).is_none_or(|m| f32_on_flex(&m.first) && f32_on_flex(&m.second));
-        f32_on_flex(grad) && param.val().dtype() == DType::F32 && moments_fit
-    }
-
-    /// The tensor operations' step, in one pass over the parameter's memory
-    /// ([`crate::cpu_optim::adamw_update`], bit-identical to them); [`Self::host_applies`] holds.
-    fn update_on_host<const D: usize>(
-        &mut self,
-        param: Param<Tensor<D>>,
-        grad: Tensor<1>,
-        lr: f64,
-    ) -> Param<Tensor<D>> {
-        let id = param.id;
-        let scalars = AdamWScalars::new(lr, self.clip, self.betas, self.weight_decay, self.epsilon, self.step);
-        let device = grad.device();
-        let grad = grad.into_data();
-        let (mut first, mut second, fresh) = match self.moments.remove(&id) {
-            Some(m) => (m.first.into_data(), m.second.into_data(), false),
-            None => (
-                TensorData::zeros::<f32, _>(grad.shape().clone()),
-                TensorData::zeros::<f32, _>(grad.shape().clone()),
-                true,
-            ),
-        };
-        let moments = &mut *self.moments;
-        param.map(|tensor| {
-            // The updated weight keeps the checkpointing strategy the trainer put it on.
-            let strategy = tensor.gradient_checkpointing_strategy();
-            let mut weight = tensor.inner().into_data();
-            {
-                let as_f32 = "f32 data (checked by host_applies)";
-                let w = weight.as_mut_slice::<f32>().expect(as_f32);
-                let g = grad.as_slice::<f32>().expect(as_f32);
-                let m = first.as_mut_slice::<f32>().expect(as_f32);
-                let v = second.as_mut_slice::<f32>().expect(as_f32);
-                adamw_update(w, g, m, v, fresh, scalars);
-            }
-            moments.insert(
-                id,
-                Moments { first: Tensor::from_data(first, &device), second: Tensor::from_data(second, &device) },
-            );
-            let updated = Tensor::from_inner(Tensor::from_data(weight, &device));
             match strategy {
                 Some(strategy) => updated.with_gradient_checkpointing_strategy(strategy),
                 None => updated,
