@@ -51,6 +51,7 @@ mod cpu_geglu;
 mod cpu_gemm;
 mod cpu_group_norm;
 mod cpu_linear;
+mod cpu_pool;
 pub mod device;
 pub mod enhancer;
 mod flex_autodiff;

@@ -757,12 +757,14 @@ impl MultiViewPipeline {
         let per_domain: Vec<Tensor<4>> =
             noises.into_iter().map(|n| if n.dims()[0] == NUM_VIEWS { n.repeat_dim(0, 2) } else { n }).collect();
         let mut x = join_draws(&per_domain);
+        // Each UNet pass runs on a worker of rayon's pool, which the CPU kernels share.
+        use crate::cpu_pool::on_pool;
         match options.sampler {
             SamplerKind::Ddim => {
                 let scheduler = DdimScheduler::new(self.scheduler.clone(), options.steps)?;
                 let total = scheduler.timesteps().len();
                 for (i, &t) in scheduler.timesteps().iter().enumerate() {
-                    let eps = self.predict(x.clone(), t, cond, &labels, options.guidance)?;
+                    let eps = on_pool(|| self.predict(x.clone(), t, cond, &labels, options.guidance))?;
                     let variance_noise = (options.eta > 0.0).then(|| {
                         let shape = per_domain[0].dims();
                         let per_draw: Vec<Tensor<4>> = seeds
@@ -782,7 +784,7 @@ impl MultiViewPipeline {
                 let mut scheduler = DpmSolverMultistepScheduler::new(self.scheduler.clone(), options.steps)?;
                 let timesteps = scheduler.timesteps().to_vec();
                 for (i, &t) in timesteps.iter().enumerate() {
-                    let eps = self.predict(x.clone(), t, cond, &labels, options.guidance)?;
+                    let eps = on_pool(|| self.predict(x.clone(), t, cond, &labels, options.guidance))?;
                     x = scheduler.step(eps, t, x)?;
                     progress(i + 1, timesteps.len());
                 }
@@ -791,7 +793,7 @@ impl MultiViewPipeline {
                 let mut scheduler = UniPcMultistepScheduler::new(self.scheduler.clone(), options.steps)?;
                 let timesteps = scheduler.timesteps().to_vec();
                 for (i, &t) in timesteps.iter().enumerate() {
-                    let eps = self.predict(x.clone(), t, cond, &labels, options.guidance)?;
+                    let eps = on_pool(|| self.predict(x.clone(), t, cond, &labels, options.guidance))?;
                     x = scheduler.step(eps, t, x)?;
                     progress(i + 1, timesteps.len());
                 }

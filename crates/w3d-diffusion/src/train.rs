@@ -35,6 +35,7 @@ use std::collections::{HashMap, HashSet};
 
 use burn::module::{Module, ModuleMapper, ModuleVisitor, Param, ParamId};
 use burn::tensor::{Device, GradientCheckpointingStrategy, Gradients, Tensor, TensorData};
+use rayon::prelude::*;
 use w3d_core::Error;
 
 use crate::config::SchedulerConfig;
@@ -640,13 +641,17 @@ impl Trainer {
         let decay = self.ema_decay_at(self.step);
         let mut current = CollectValues { trainable: &self.trainable, out: Vec::new() };
         self.unet.visit(&mut current);
-        for (id, value) in current.out {
-            let averaged = match self.ema.remove(&id) {
-                Some(ema) if decay > 0.0 => ema * decay + value * (1.0 - decay),
-                _ => value,
-            };
-            self.ema.insert(id, averaged);
-        }
+        // In parallel over the parameters, as AdamW's step (`AdamW::into_updates`).
+        let work: Vec<(ParamId, Tensor<1>, Option<Tensor<1>>)> =
+            current.out.into_iter().map(|(id, value)| (id, value, self.ema.remove(&id))).collect();
+        let averaged: Vec<(ParamId, Tensor<1>)> = work
+            .into_par_iter()
+            .map(|(id, value, ema)| match ema {
+                Some(ema) if decay > 0.0 => (id, ema * decay + value * (1.0 - decay)),
+                _ => (id, value),
+            })
+            .collect();
+        self.ema.extend(averaged);
     }
 
     /// The objective.
@@ -703,8 +708,14 @@ impl Trainer {
     }
 
     /// One micro-batch with given draws: forward, backward, gradients accumulated; every
-    /// `gradient_accumulation` micro-batches an AdamW step (clipped, warmed-up).
+    /// `gradient_accumulation` micro-batches an AdamW step (clipped, warmed-up). The step runs
+    /// on a worker of rayon's pool, which the CPU kernels share (see `cpu_pool`).
     pub fn step_with(&mut self, batch: &TrainBatch, draws: &StepDraws) -> Result<StepLog, Error> {
+        crate::cpu_pool::on_pool(|| self.step_on_pool(batch, draws))
+    }
+
+    /// The body of [`Trainer::step_with`], run on a worker of the pool.
+    fn step_on_pool(&mut self, batch: &TrainBatch, draws: &StepDraws) -> Result<StepLog, Error> {
         let loss = self.objective.loss(&self.unet, batch, draws)?;
         let loss_value = loss
             .clone()
@@ -798,7 +809,8 @@ impl Trainer {
             weight_decay: o.weight_decay,
             epsilon: o.epsilon,
             step: self.step,
-        };
+        }
+        .into_updates();
         let unet = self.unet.clone().map(&mut update);
         self.unet = unet;
         self.update_ema();
@@ -810,11 +822,10 @@ impl Trainer {
 /// `clip_grad_norm_`) and the factor `min(1, max / (norm + 1e-6))` the gradients are scaled
 /// by (1 without a maximum). A non-finite norm is an error.
 fn clip_factor(grads: &HashMap<ParamId, Tensor<1>>, max: Option<f64>) -> Result<(f64, f64), Error> {
-    let mut total = 0.0f64;
-    for g in grads.values() {
-        let sq: f32 = (g.clone() * g.clone()).sum().into_scalar();
-        total += sq as f64;
-    }
+    // The per-tensor sums in parallel, added up in the map's order as before.
+    let tensors: Vec<&Tensor<1>> = grads.values().collect();
+    let squares: Vec<f32> = tensors.into_par_iter().map(|g| (g.clone() * g.clone()).sum().into_scalar()).collect();
+    let total: f64 = squares.into_iter().fold(0.0, |total, sq| total + sq as f64);
     let norm = total.sqrt();
     if !norm.is_finite() {
         return Err(Error::invalid("gradients", format!("a finite norm (found {norm}); lower the learning rate")));
@@ -919,7 +930,8 @@ impl ModuleMapper for SetValues<'_> {
     }
 }
 
-/// PyTorch's AdamW (decoupled weight decay, bias-corrected moments) on clipped gradients.
+/// PyTorch's AdamW (decoupled weight decay, bias-corrected moments) on clipped gradients;
+/// [`AdamW::into_updates`] computes the step.
 struct AdamW<'a> {
     grads: HashMap<ParamId, Tensor<1>>,
     moments: &'a mut HashMap<ParamId, Moments>,
@@ -932,26 +944,54 @@ struct AdamW<'a> {
     step: usize,
 }
 
-impl ModuleMapper for AdamW<'_> {
-    fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
-        let Some(grad) = self.grads.remove(&param.id) else { return param };
-        let lr = (self.lr_of)(param.id);
-        let id = param.id;
+impl AdamW<'_> {
+    /// Every parameter's new moments (stored) and update, computed in parallel over the
+    /// parameters. Each parameter gets the same tensor operations as one after the other, so
+    /// the same bits; in sequence, on one core, they were about a tenth of the small UNet's
+    /// training step (`docs/benchmarks.md`, "Training step").
+    fn into_updates(self) -> AdamWUpdates {
+        let work: Vec<(ParamId, Tensor<1>, Option<Moments>, f64)> =
+            self.grads.into_iter().map(|(id, grad)| (id, grad, self.moments.remove(&id), (self.lr_of)(id))).collect();
         let (b1, b2) = self.betas;
-        let grad = grad * self.clip;
-        let moments = match self.moments.remove(&id) {
-            Some(m) => Moments {
-                first: m.first * b1 + grad.clone() * (1.0 - b1),
-                second: m.second * b2 + grad.clone() * grad * (1.0 - b2),
-            },
-            None => Moments { first: grad.clone() * (1.0 - b1), second: grad.clone() * grad * (1.0 - b2) },
-        };
         let bias1 = 1.0 - b1.powi(self.step as i32);
         let bias2 = 1.0 - b2.powi(self.step as i32);
-        let denom = moments.second.clone().sqrt() / bias2.sqrt() + self.epsilon;
-        let delta = moments.first.clone() / denom * (lr / bias1);
-        self.moments.insert(id, moments);
-        let weight_decay = 1.0 - lr * self.weight_decay;
+        let (clip, epsilon, weight_decay) = (self.clip, self.epsilon, self.weight_decay);
+        let done: Vec<(ParamId, Moments, Tensor<1>, f64)> = work
+            .into_par_iter()
+            .map(|(id, grad, moments, lr)| {
+                let grad = grad * clip;
+                let moments = match moments {
+                    Some(m) => Moments {
+                        first: m.first * b1 + grad.clone() * (1.0 - b1),
+                        second: m.second * b2 + grad.clone() * grad * (1.0 - b2),
+                    },
+                    None => Moments { first: grad.clone() * (1.0 - b1), second: grad.clone() * grad * (1.0 - b2) },
+                };
+                let denom = moments.second.clone().sqrt() / bias2.sqrt() + epsilon;
+                let delta = moments.first.clone() / denom * (lr / bias1);
+                (id, moments, delta, 1.0 - lr * weight_decay)
+            })
+            .collect();
+        let mut updates = HashMap::with_capacity(done.len());
+        for (id, moments, delta, decay) in done {
+            self.moments.insert(id, moments);
+            updates.insert(id, (delta, decay));
+        }
+        AdamWUpdates { updates }
+    }
+}
+
+/// The parameters' AdamW updates ([`AdamW::into_updates`]); mapping a module by them applies
+/// them.
+struct AdamWUpdates {
+    /// Per parameter: the step to subtract and the decoupled weight decay's factor
+    /// `1 − lr·λ`.
+    updates: HashMap<ParamId, (Tensor<1>, f64)>,
+}
+
+impl ModuleMapper for AdamWUpdates {
+    fn map_float<const D: usize>(&mut self, param: Param<Tensor<D>>) -> Param<Tensor<D>> {
+        let Some((delta, weight_decay)) = self.updates.remove(&param.id) else { return param };
         param.map(|tensor| {
             let dims = tensor.dims();
             // The updated weight keeps the checkpointing strategy the trainer put it on.
@@ -1451,47 +1491,57 @@ pub fn train_vae(
     let lr = options.learning_rate;
     let lr_of = |_: ParamId| lr;
     for step in 1..=options.steps {
-        let picks: Vec<usize> = (0..options.batch).map(|_| (next() % images.len() as u64) as usize).collect();
-        let x = Tensor::cat(picks.iter().map(|&i| to_tensor(&images[i], &ad)).collect(), 0);
-        let (mean, logvar) = if options.decoder_only {
-            let stack = |part: fn(&(TensorData, TensorData)) -> &TensorData| {
-                Tensor::cat(picks.iter().map(|&i| Tensor::<4>::from_data(part(&frozen[i]).clone(), &ad)).collect(), 0)
+        // The step runs on a worker of rayon's pool, which the CPU kernels share (see `cpu_pool`).
+        let current = vae;
+        let (updated, value) = crate::cpu_pool::on_pool(|| -> Result<(crate::Vae, f32), Error> {
+            let vae = current;
+            let picks: Vec<usize> = (0..options.batch).map(|_| (next() % images.len() as u64) as usize).collect();
+            let x = Tensor::cat(picks.iter().map(|&i| to_tensor(&images[i], &ad)).collect(), 0);
+            let (mean, logvar) = if options.decoder_only {
+                let stack = |part: fn(&(TensorData, TensorData)) -> &TensorData| {
+                    Tensor::cat(
+                        picks.iter().map(|&i| Tensor::<4>::from_data(part(&frozen[i]).clone(), &ad)).collect(),
+                        0,
+                    )
+                };
+                (stack(|m| &m.0), stack(|m| &m.1))
+            } else {
+                vae.encode_moments(x.clone())?
             };
-            (stack(|m| &m.0), stack(|m| &m.1))
-        } else {
-            vae.encode_moments(x.clone())?
-        };
-        let z = if options.sample_posterior {
-            let eps = gaussian_noise(mean.dims(), next(), &ad);
-            mean.clone() + (logvar.clone() * 0.5).exp() * eps
-        } else {
-            mean.clone()
-        };
-        let recon = vae.decode(z)?;
-        let diff = recon - x;
-        let mse = (diff.clone() * diff).mean();
-        let loss = if options.decoder_only {
-            mse
-        } else {
-            let kl = ((mean.clone() * mean + logvar.clone().exp() - logvar - 1.0) * 0.5).mean();
-            mse + kl * options.kl_weight
-        };
-        let value = scalar(&loss)?;
-        let grads = loss.backward();
-        let mut collect = CollectAllGrads { grads: &grads, ids: &ids, out: HashMap::new() };
-        vae.visit(&mut collect);
-        let (_, clip) = clip_factor(&collect.out, options.max_grad_norm)?;
-        let mut update = AdamW {
-            grads: collect.out,
-            moments: &mut moments,
-            lr_of: &lr_of,
-            clip,
-            betas: (0.9, 0.999),
-            weight_decay: 0.0,
-            epsilon: 1e-8,
-            step,
-        };
-        vae = vae.map(&mut update);
+            let z = if options.sample_posterior {
+                let eps = gaussian_noise(mean.dims(), next(), &ad);
+                mean.clone() + (logvar.clone() * 0.5).exp() * eps
+            } else {
+                mean.clone()
+            };
+            let recon = vae.decode(z)?;
+            let diff = recon - x;
+            let mse = (diff.clone() * diff).mean();
+            let loss = if options.decoder_only {
+                mse
+            } else {
+                let kl = ((mean.clone() * mean + logvar.clone().exp() - logvar - 1.0) * 0.5).mean();
+                mse + kl * options.kl_weight
+            };
+            let value = scalar(&loss)?;
+            let grads = loss.backward();
+            let mut collect = CollectAllGrads { grads: &grads, ids: &ids, out: HashMap::new() };
+            vae.visit(&mut collect);
+            let (_, clip) = clip_factor(&collect.out, options.max_grad_norm)?;
+            let mut update = AdamW {
+                grads: collect.out,
+                moments: &mut moments,
+                lr_of: &lr_of,
+                clip,
+                betas: (0.9, 0.999),
+                weight_decay: 0.0,
+                epsilon: 1e-8,
+                step,
+            }
+            .into_updates();
+            Ok((vae.map(&mut update), value))
+        })?;
+        vae = updated;
         on_step(step, value);
     }
     let vae = vae.valid();
