@@ -665,6 +665,19 @@ impl MultiViewPipeline {
         labels: &Tensor<2>,
         guidance: f64,
     ) -> Result<Tensor<4>, Error> {
+        // On a worker of rayon's pool, which the CPU kernels share (see `cpu_pool`).
+        crate::cpu_pool::on_pool(|| self.predict_on_pool(x, t, cond, labels, guidance))
+    }
+
+    /// The body of [`Self::predict`], run on a worker of the pool.
+    fn predict_on_pool(
+        &self,
+        x: Tensor<4>,
+        t: usize,
+        cond: &Conditioning,
+        labels: &Tensor<2>,
+        guidance: f64,
+    ) -> Result<Tensor<4>, Error> {
         let n = x.dims()[0];
         let cond_latent = cond.latent.clone().repeat_dim(0, n);
         let [_, d] = cond.embeds.dims();
@@ -757,14 +770,12 @@ impl MultiViewPipeline {
         let per_domain: Vec<Tensor<4>> =
             noises.into_iter().map(|n| if n.dims()[0] == NUM_VIEWS { n.repeat_dim(0, 2) } else { n }).collect();
         let mut x = join_draws(&per_domain);
-        // Each UNet pass runs on a worker of rayon's pool, which the CPU kernels share.
-        use crate::cpu_pool::on_pool;
         match options.sampler {
             SamplerKind::Ddim => {
                 let scheduler = DdimScheduler::new(self.scheduler.clone(), options.steps)?;
                 let total = scheduler.timesteps().len();
                 for (i, &t) in scheduler.timesteps().iter().enumerate() {
-                    let eps = on_pool(|| self.predict(x.clone(), t, cond, &labels, options.guidance))?;
+                    let eps = self.predict(x.clone(), t, cond, &labels, options.guidance)?;
                     let variance_noise = (options.eta > 0.0).then(|| {
                         let shape = per_domain[0].dims();
                         let per_draw: Vec<Tensor<4>> = seeds
@@ -784,7 +795,7 @@ impl MultiViewPipeline {
                 let mut scheduler = DpmSolverMultistepScheduler::new(self.scheduler.clone(), options.steps)?;
                 let timesteps = scheduler.timesteps().to_vec();
                 for (i, &t) in timesteps.iter().enumerate() {
-                    let eps = on_pool(|| self.predict(x.clone(), t, cond, &labels, options.guidance))?;
+                    let eps = self.predict(x.clone(), t, cond, &labels, options.guidance)?;
                     x = scheduler.step(eps, t, x)?;
                     progress(i + 1, timesteps.len());
                 }
@@ -793,7 +804,7 @@ impl MultiViewPipeline {
                 let mut scheduler = UniPcMultistepScheduler::new(self.scheduler.clone(), options.steps)?;
                 let timesteps = scheduler.timesteps().to_vec();
                 for (i, &t) in timesteps.iter().enumerate() {
-                    let eps = on_pool(|| self.predict(x.clone(), t, cond, &labels, options.guidance))?;
+                    let eps = self.predict(x.clone(), t, cond, &labels, options.guidance)?;
                     x = scheduler.step(eps, t, x)?;
                     progress(i + 1, timesteps.len());
                 }

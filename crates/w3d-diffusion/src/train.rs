@@ -1492,9 +1492,7 @@ pub fn train_vae(
     let lr_of = |_: ParamId| lr;
     for step in 1..=options.steps {
         // The step runs on a worker of rayon's pool, which the CPU kernels share (see `cpu_pool`).
-        let current = vae;
         let (updated, value) = crate::cpu_pool::on_pool(|| -> Result<(crate::Vae, f32), Error> {
-            let vae = current;
             let picks: Vec<usize> = (0..options.batch).map(|_| (next() % images.len() as u64) as usize).collect();
             let x = Tensor::cat(picks.iter().map(|&i| to_tensor(&images[i], &ad)).collect(), 0);
             let (mean, logvar) = if options.decoder_only {
