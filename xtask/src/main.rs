@@ -109,7 +109,8 @@ enum Task {
     /// the tiny checkpoint.
     GpuCheck,
     /// Train the small multi-view model (docs/training.md): dataset, VAE, three UNet stages,
-    /// two joint phases, a cool-down, the decoder's fine-tune.
+    /// seven joint phases with a cool-down after each but the first, the decoder's fine-tune
+    /// beside them (about 2 h 27 min on 2 cores).
     TrainSmall {
         /// Output folder (dataset, stage checkpoints and logs, final model).
         #[arg(long, default_value = "target/train-small")]
@@ -123,19 +124,20 @@ enum Task {
         #[arg(long)]
         resume: bool,
         /// Steps of the UNet phases (stages 1, 2, 3, joint, joint2, cool-down, joint3,
-        /// cool-down 2, joint4, cool-down 3, joint5, cool-down 4, joint6, cool-down 5), comma separated, instead of
+        /// cool-down 2, joint4, cool-down 3, joint5, cool-down 4, joint6, cool-down 5, joint7, cool-down 6), comma
+        /// separated, instead of
         /// the recipe's; to try a shorter schedule. At least the three stages' counts; 0 leaves
         /// a later phase out, and so does ending the list before it. Recorded in `recipe.json`.
         #[arg(long, value_delimiter = ',')]
         phase_steps: Option<Vec<usize>>,
         /// Passes of the decoder's fine-tune as STEPS:LR, comma separated, instead of the
-        /// recipe's `1500:3e-4,4500:2e-4` (each pass starts with fresh optimizer moments).
+        /// recipe's `1500:3e-4,4500:2e-4,4500:1e-4` (each pass starts with fresh optimizer moments).
         /// Recorded in `recipe.json`.
         #[arg(long, value_delimiter = ',', value_parser = train_small::parse_decoder_pass)]
         decoder_passes: Option<Vec<(usize, f64)>>,
         /// The UNet's `config.json` instead of the recipe's
-        /// (`crates/w3d-diffusion/configs/small/unet`), e.g. the half-width
-        /// `configs/small/unet-half` (docs/training.md). Used when the run starts; a resumed
+        /// (`crates/w3d-diffusion/configs/small/unet-half`), e.g. the full-width
+        /// `configs/small/unet/config.json` (docs/training.md). Used when the run starts; a resumed
         /// run keeps its UNet.
         #[arg(long)]
         unet_config: Option<PathBuf>,

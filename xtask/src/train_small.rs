@@ -146,9 +146,9 @@ impl Phase {
 /// only background inference uses — a model this small generates garbage from an input on a
 /// background other than the one its sample was trained on (docs/training.md). The second
 /// joint phase continues the first with fresh optimizer moments and an EMA of the weights;
-/// a cool-down starts from that average and brings the learning rate down to 0. A third, a
-/// fourth and a fifth joint phase, each with its cool-down, repeat the last two from the
-/// cooled model: the moving average alone scores no better than its start, the cool-down after
+/// a cool-down starts from that average and brings the learning rate down to 0. The third
+/// to seventh joint phases, each with its cool-down, repeat the last two from the cooled
+/// model: the moving average alone scores no better than its start, the cool-down after
 /// it does (docs/training.md).
 const PHASES: [Phase; PHASE_COUNT] = [
     Phase::stage("stage1", Stage::MultiDomain, 10),
@@ -165,10 +165,18 @@ const PHASES: [Phase; PHASE_COUNT] = [
     Phase::cool_down("cooldown4", 8),
     Phase::joint("joint6", 14, Some(0.999)),
     Phase::cool_down("cooldown5", 15),
+    Phase::joint("joint7", 16, Some(0.999)),
+    Phase::cool_down("cooldown6", 17),
 ];
 
 /// The number of UNet phases ([`PHASES`]).
-pub(crate) const PHASE_COUNT: usize = 14;
+pub(crate) const PHASE_COUNT: usize = 16;
+
+/// The folder under `configs/small` of the recipe's UNet configuration: the half width
+/// (`block_out_channels` [32, 64, 64], 1.45 M parameters), which learns more per hour of 2
+/// cores than the full width of `configs/small/unet` and generates in half the time
+/// (docs/training.md, items 11 and 16).
+const RECIPE_UNET: &str = "unet-half";
 
 /// The schedule of one run.
 #[derive(Clone, Debug)]
@@ -195,16 +203,19 @@ impl Schedule {
             samples: 12,
             size: 64,
             vae_steps: 1200,
-            // The last six phases (added on 2026-12-06) lowered the generated normals' error
-            // of every training object (docs/training.md, "Where the error comes from").
-            // The sixth pair (joint6, cooldown5) is left out: `--phase-steps` can add it.
-            stage_steps: [800, 6000, 1000, 3000, 22000, 2000, 20000, 2000, 7000, 2000, 4000, 2000, 0, 0],
-            stage_warmup: [40, 300, 75, 50, 50, 50, 50, 50, 50, 50, 50, 50, 50, 50],
-            stage_lr: [5e-4, 3e-4, 2e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4],
-            // The second pass (added on 2026-12-05) lowered the decoder's own error on the
-            // training views from 15.4–30.3° to 11.1–20.7° and the generated normals' by
-            // 0.2–4.8° (docs/training.md).
-            decoder_passes: vec![(1500, 3e-4), (4500, 2e-4)],
+            // Seven joint phases, each but the first followed by a cool-down: every pair
+            // lowered the generated normals' error of every training object, a long pair
+            // more than a short one (docs/training.md, "Where the error comes from", items 6,
+            // 11 and 16).
+            stage_steps: [
+                800, 4000, 1000, 3000, 16000, 2000, 8000, 2000, 7000, 2000, 4000, 2000, 4000, 2000, 14000, 2000,
+            ],
+            stage_warmup: [40, 300, 75, 50, 50, 50, 50, 50, 50, 50, 50, 50, 50, 50, 50, 50],
+            stage_lr: [5e-4, 3e-4, 2e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4],
+            // Each pass lowered the decoder's own error on the training views and passed part
+            // of it on to the generated normals: the second 0.2–4.8°, the third 0.9–1.0°
+            // (docs/training.md, item 14). They run beside the UNet's phases.
+            decoder_passes: vec![(1500, 3e-4), (4500, 2e-4), (4500, 1e-4)],
             objects_per_batch: 1,
             // The small model predicts v and weighs every timestep alike in v (x₀ error
             // weighted by SNR + 1): with ε or Min-SNR weights (x₀ error weighted by
@@ -235,7 +246,7 @@ pub(crate) struct Overrides {
     pub phase_steps: Option<Vec<usize>>,
     /// Steps and learning rate of each of the decoder's passes (`--decoder-passes`).
     pub decoder_passes: Option<Vec<(usize, f64)>>,
-    /// The UNet's `config.json` (`--unet-config`; the recipe's is `configs/small/unet`).
+    /// The UNet's `config.json` (`--unet-config`; the recipe's is [`RECIPE_UNET`]'s).
     pub unet_config: Option<PathBuf>,
 }
 
@@ -298,7 +309,8 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, overrides: &Overrides) 
         }
         schedule.decoder_passes = passes.clone();
     }
-    let unet_config = overrides.unet_config.clone().unwrap_or_else(|| config_dir().join("unet").join("config.json"));
+    let unet_config =
+        overrides.unet_config.clone().unwrap_or_else(|| config_dir().join(RECIPE_UNET).join("config.json"));
     // Read now, so that a wrong path fails before the hours of training, not after the VAE.
     let unet_config = UNetConfig::from_file(&unet_config).map_err(|e| format!("--unet-config: {e}"))?;
     let root = crate::workspace_root();

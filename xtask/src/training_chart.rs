@@ -31,6 +31,8 @@ enum Marker {
     Square,
     Cross,
     Ring,
+    /// A filled square.
+    Block,
 }
 
 pub(crate) fn run() -> Result<(), String> {
@@ -50,7 +52,7 @@ pub(crate) fn run() -> Result<(), String> {
     }
     let target = doc["target_deg"].as_f64().ok_or_else(|| bad("no number `target_deg`"))?;
     let budget = doc["budget_hours"].as_f64().ok_or_else(|| bad("no number `budget_hours`"))?;
-    let markers = [Marker::Circle, Marker::Triangle, Marker::Square, Marker::Cross, Marker::Ring];
+    let markers = [Marker::Circle, Marker::Triangle, Marker::Square, Marker::Cross, Marker::Ring, Marker::Block];
     let mut series = Vec::new();
     for (k, s) in doc["series"].as_array().ok_or_else(|| bad("no `series` array"))?.iter().enumerate() {
         let name = s["name"].as_str().ok_or_else(|| bad(&format!("series {k}: no `name`")))?.to_string();
@@ -170,6 +172,7 @@ fn marker_shape<DB: DrawingBackend>(marker: Marker, colour: RGBColor) -> DynElem
         Marker::Square => Rectangle::new([(-4, -4), (4, 4)], stroke).into_dyn(),
         Marker::Cross => Cross::new((0, 0), 4, stroke).into_dyn(),
         Marker::Ring => Circle::new((0, 0), 4, stroke).into_dyn(),
+        Marker::Block => Rectangle::new([(-4, -4), (4, 4)], colour.filled()).into_dyn(),
     }
 }
 
