@@ -124,9 +124,8 @@ enum Task {
         #[arg(long)]
         resume: bool,
         /// Steps of the UNet phases (stages 1, 2, 3, joint, joint2, cool-down, joint3,
-        /// cool-down 2, joint4, cool-down 3, joint5, cool-down 4, joint6, cool-down 5, joint7, cool-down 6), comma
-        /// separated, instead of
-        /// the recipe's; to try a shorter schedule. At least the three stages' counts; 0 leaves
+        /// cool-down 2, joint4, cool-down 3, joint5, cool-down 4, joint6, cool-down 5, joint7,
+        /// cool-down 6), comma separated, instead of the recipe's; to try a shorter schedule. At least the three stages' counts; 0 leaves
         /// a later phase out, and so does ending the list before it. Recorded in `recipe.json`.
         #[arg(long, value_delimiter = ',')]
         phase_steps: Option<Vec<usize>>,
