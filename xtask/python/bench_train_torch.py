@@ -4,7 +4,8 @@ The same step as crates/w3d-diffusion/benches/train.rs: the whole UNet trained o
 12 images (6 views x normal and colour), one timestep per domain group (250, 600), ε-MSE with
 Min-SNR-γ (5) weights, backward, clip_grad_norm_(1.0), one AdamW step (class embedding at 10x
 the learning rate). Configs: the tiny test checkpoint's (8x8 latents) and the small model's
-(configs/small, 16x16 latents, with cross-domain attention), random weights, the multi-view
+two widths (configs/small/unet and unet-half, 16x16 latents, with cross-domain attention),
+random weights, the multi-view
 blocks of fixtures_diffusion.py on diffusers' modules. f32, all CPU threads. Prints one JSON
 object per configuration: median and all times in ms.
 """
@@ -35,8 +36,8 @@ MV_TO_2D = {
 }
 
 
-def small_config():
-    with open(os.path.join(root, "crates/w3d-diffusion/configs/small/unet/config.json")) as f:
+def small_config(folder):
+    with open(os.path.join(root, "crates/w3d-diffusion/configs/small", folder, "config.json")) as f:
         config = json.load(f)
     known = inspect.signature(UNet2DConditionModel.__init__).parameters
     out = {k: v for k, v in config.items() if not k.startswith("_") and k in known}
@@ -96,4 +97,6 @@ def bench(name, config, side, scheduler_path):
 
 tiny = os.path.join(root, "crates/w3d-diffusion/tests/fixtures/wonder3d_tiny")
 bench("tiny", dict(MV_UNET), 8, os.path.join(tiny, "scheduler/scheduler_config.json"))
-bench("small", small_config(), 16, os.path.join(root, "crates/w3d-diffusion/configs/small/scheduler/scheduler_config.json"))
+small_scheduler = os.path.join(root, "crates/w3d-diffusion/configs/small/scheduler/scheduler_config.json")
+bench("small", small_config("unet"), 16, small_scheduler)
+bench("small-half", small_config("unet-half"), 16, small_scheduler)

@@ -1,8 +1,8 @@
 //! `cargo xtask bench train`: one optimizer step (forward, backward, gradient clipping, AdamW)
 //! of the multi-view cross-domain UNet on one object's 12 images (6 views × normal and
 //! colour), the whole UNet trained, for the tiny test checkpoint (`tests/fixtures/wonder3d_tiny`,
-//! 8×8 latents) and the small model's configuration (`configs/small`, 16×16 latents, random
-//! weights), on flex (and ndarray with the `ndarray` feature). The xtask then times the same step in PyTorch on the CPU
+//! 8×8 latents) and the small model's configurations (`configs/small/unet` and the half width
+//! `configs/small/unet-half`, 16×16 latents, random weights), on flex (and ndarray with the `ndarray` feature). The xtask then times the same step in PyTorch on the CPU
 //! (xtask/python/bench_train_torch.py) and records the ratios.
 #![allow(missing_docs)] // criterion_group! generates an undocumented function
 
@@ -17,14 +17,19 @@ fn crate_path(rel: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(rel)
 }
 
+/// The small model's UNet from `configs/small/<dir>` with random weights and the cross-domain
+/// attention of stage 3.
+fn small_unet(dir: &str, device: &Device) -> UNet {
+    let config =
+        UNetConfig::from_file(crate_path("configs/small").join(dir).join("config.json")).expect("small config");
+    UNet::random(&config, 3, device).and_then(|u| u.with_cross_domain_attention(4)).expect("small UNet")
+}
+
 /// (name, UNet, scheduler, latent side) of each configuration on `device`.
 fn models(device: &Device) -> Vec<(&'static str, UNet, SchedulerConfig, usize)> {
     let tiny = crate_path("tests/fixtures/wonder3d_tiny");
-    let small = crate_path("configs/small");
-    let small_unet =
-        UNet::random(&UNetConfig::from_file(small.join("unet/config.json")).expect("small config"), 3, device)
-            .and_then(|u| u.with_cross_domain_attention(4))
-            .expect("small UNet");
+    let small_scheduler =
+        || SchedulerConfig::from_file(crate_path("configs/small/scheduler/scheduler_config.json")).expect("scheduler");
     vec![
         (
             "tiny",
@@ -32,12 +37,9 @@ fn models(device: &Device) -> Vec<(&'static str, UNet, SchedulerConfig, usize)> 
             SchedulerConfig::from_file(tiny.join("scheduler/scheduler_config.json")).expect("scheduler"),
             8,
         ),
-        (
-            "small",
-            small_unet,
-            SchedulerConfig::from_file(small.join("scheduler/scheduler_config.json")).expect("scheduler"),
-            16,
-        ),
+        ("small", small_unet("unet", device), small_scheduler(), 16),
+        // The half width the shipped small model is trained at (docs/training.md).
+        ("small-half", small_unet("unet-half", device), small_scheduler(), 16),
     ]
 }
 
