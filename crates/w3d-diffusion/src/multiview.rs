@@ -666,40 +666,30 @@ impl MultiViewPipeline {
         guidance: f64,
     ) -> Result<Tensor<4>, Error> {
         // On a worker of rayon's pool, which the CPU kernels share (see `cpu_pool`).
-        crate::cpu_pool::on_pool(|| self.predict_on_pool(x, t, cond, labels, guidance))
-    }
-
-    /// The body of [`Self::predict`], run on a worker of the pool.
-    fn predict_on_pool(
-        &self,
-        x: Tensor<4>,
-        t: usize,
-        cond: &Conditioning,
-        labels: &Tensor<2>,
-        guidance: f64,
-    ) -> Result<Tensor<4>, Error> {
-        let n = x.dims()[0];
-        let cond_latent = cond.latent.clone().repeat_dim(0, n);
-        let [_, d] = cond.embeds.dims();
-        let context: Tensor<3> = cond.embeds.clone().reshape([1, 1, d]).repeat_dim(0, n);
-        let timestep = [t as f32];
-        debug_assert_eq!(labels.dims()[0], n, "labels of the [normal, colour] batch");
-        let conditional = self.unet.forward(
-            Tensor::cat(vec![x.clone(), cond_latent.clone()], 1),
-            &timestep,
-            context.clone(),
-            Some(labels.clone()),
-        )?;
-        if guidance == 1.0 {
-            return Ok(conditional);
-        }
-        let unconditional = self.unet.forward(
-            Tensor::cat(vec![x, cond_latent.zeros_like()], 1),
-            &timestep,
-            context.zeros_like(),
-            Some(labels.clone()),
-        )?;
-        Ok(classifier_free_guidance(unconditional, conditional, guidance))
+        crate::cpu_pool::on_pool(|| {
+            let n = x.dims()[0];
+            let cond_latent = cond.latent.clone().repeat_dim(0, n);
+            let [_, d] = cond.embeds.dims();
+            let context: Tensor<3> = cond.embeds.clone().reshape([1, 1, d]).repeat_dim(0, n);
+            let timestep = [t as f32];
+            debug_assert_eq!(labels.dims()[0], n, "labels of the [normal, colour] batch");
+            let conditional = self.unet.forward(
+                Tensor::cat(vec![x.clone(), cond_latent.clone()], 1),
+                &timestep,
+                context.clone(),
+                Some(labels.clone()),
+            )?;
+            if guidance == 1.0 {
+                return Ok(conditional);
+            }
+            let unconditional = self.unet.forward(
+                Tensor::cat(vec![x, cond_latent.zeros_like()], 1),
+                &timestep,
+                context.zeros_like(),
+                Some(labels.clone()),
+            )?;
+            Ok(classifier_free_guidance(unconditional, conditional, guidance))
+        })
     }
 
     fn check_conditioning(&self, cond: &Conditioning) -> Result<(), Error> {
