@@ -15,7 +15,7 @@ fn main() -> wonder3d::Result<()> {
         eprintln!("usage: bake_texture MESH VIEWS_DIR OUT.(glb|obj) [TEXELS]");
         std::process::exit(2);
     };
-    wonder3d::check_mesh_output(out)?;
+    wonder3d::outputs::check_mesh_output(out)?;
     // The views of `wonder3d render` are of the mesh normalised into the unit cube.
     let mut mesh = load_mesh(mesh)?.without_attributes();
     mesh.normalize_unit_cube();

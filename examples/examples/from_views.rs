@@ -13,7 +13,7 @@ fn main() -> wonder3d::Result<()> {
         eprintln!("usage: from_views VIEWS_DIR OUT.glb");
         std::process::exit(2);
     };
-    wonder3d::check_mesh_output(out)?; // fail now, not after the work
+    wonder3d::outputs::check_mesh_output(out)?; // fail now, not after the work
     let views = ViewSet::load(views)?; // cameras.json + normal / mask / colour images
     let pipeline = Pipeline::new().with_preset(Preset::Default).with_texture_size(1024);
     let output = pipeline.from_views(&views, &mut |p| eprint!("\r{:>10} {}/{}   ", p.stage.name(), p.done, p.total))?;

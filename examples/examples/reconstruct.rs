@@ -16,7 +16,7 @@ fn main() -> wonder3d::Result<()> {
         std::process::exit(2);
     };
     let preset: Preset = args.get(2).map_or(Ok(Preset::Default), |p| p.parse())?;
-    wonder3d::check_mesh_output(out)?;
+    wonder3d::outputs::check_mesh_output(out)?;
     let views = ViewSet::load(views)?;
     let options = ReconOptions::preset(preset);
     let (mesh, report) = reconstruct(&views, &options, &mut |p| {

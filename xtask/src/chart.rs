@@ -52,7 +52,7 @@ where
 type Series = (&'static str, RGBColor, Vec<(f64, f64)>);
 
 pub fn run() -> Result<(), String> {
-    let path = crate::target_dir().join("bench").join("recon.json");
+    let path = crate::workspace::target_dir().join("bench").join("recon.json");
     let text = std::fs::read_to_string(&path)
         .map_err(|e| format!("{}: {e} (run `cargo xtask bench recon` first)", path.display()))?;
     let doc: Value = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
@@ -78,7 +78,7 @@ pub fn run() -> Result<(), String> {
     if series.iter().all(|s| s.2.is_empty()) {
         return Err(format!("{}: no orthographic oracle runs to chart", path.display()));
     }
-    let out = crate::workspace_root().join("docs").join("speed_accuracy.svg");
+    let out = crate::workspace::workspace_root().join("docs").join("speed_accuracy.svg");
     let max_cd = series.iter().flat_map(|s| s.2.iter().map(|p| p.1)).fold(0.025f64, f64::max) * 1.1;
     {
         let root = SVGBackend::new(&out, (820, 520)).into_drawing_area();

@@ -38,8 +38,8 @@ const PROBE_TIMESTEPS: [usize; 4] = [200, 600, 800, 950];
 /// unit variance, so 1 is no better than their mean; a model that follows its input has a
 /// much lower error with its own condition than with none, most of all at the noisiest steps.
 fn condition_use(pipeline: &MultiViewPipeline, data: &Path) -> Result<Vec<serde_json::Value>, String> {
+    use wonder3d::diffusion::train::data::{EncodedSample, TrainingSet, assemble_batch};
     use wonder3d::diffusion::train::{ConditionDrop, DiffusionObjective, Stage, StepDraws};
-    use wonder3d::diffusion::training_set::{EncodedSample, TrainingSet, assemble_batch};
     use wonder3d::diffusion::{DdimScheduler, Prediction, gaussian_noise};
 
     let device = wonder3d::diffusion::default_device();
@@ -207,7 +207,7 @@ pub(crate) fn run(
     if sampling.independent_noise && sampling.draws != 1 {
         return Err("--independent-noise draws once (--draws 1)".into());
     }
-    let root = crate::workspace_root();
+    let root = crate::workspace::workspace_root();
     // Checked before the model loads.
     let picks = pick_objects(objects)?;
     let picture = sheet_path.map_or_else(|| out.join("small_model.png"), |p| root.join(p));

@@ -224,8 +224,8 @@ pub(crate) fn run(
             reused.insert(*name, uniform_points_from(&report, path, name)?);
         }
     }
-    let out_svg = crate::workspace_root().join("docs").join("faces_accuracy.svg");
-    let bench = crate::target_dir().join("bench");
+    let out_svg = crate::workspace::workspace_root().join("docs").join("faces_accuracy.svg");
+    let bench = crate::workspace::target_dir().join("bench");
     std::fs::create_dir_all(&bench).map_err(|e| format!("{}: {e}", bench.display()))?;
     let start = Instant::now();
     let rig = ViewRig::wonder3d_ortho();
@@ -298,7 +298,7 @@ pub(crate) fn run(
         "adaptive_edge_len_lims": [default_lims.0, default_lims.1],
         "surface_samples": SURFACE_SAMPLES,
         "input": { "size": INPUT_SIZE, "normal_noise_sigma": SIGMA, "rig": rig.name },
-        "machine": crate::cpu_model(),
+        "machine": crate::workspace::cpu_model(),
         "seconds": start.elapsed().as_secs_f64(),
         "rows": rows,
     });
@@ -327,7 +327,7 @@ fn print_table(rows: &[Value]) {
 /// `cargo xtask faces-chart --replot`: the chart and the table again from
 /// `target/bench/faces.json`, without measuring.
 pub(crate) fn replot() -> Result<(), String> {
-    let path = crate::target_dir().join("bench").join("faces.json");
+    let path = crate::workspace::target_dir().join("bench").join("faces.json");
     let text = std::fs::read_to_string(&path)
         .map_err(|e| format!("{}: {e} (run `cargo xtask faces-chart` first)", path.display()))?;
     let report: Value = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
@@ -335,7 +335,7 @@ pub(crate) fn replot() -> Result<(), String> {
     if rows.is_empty() {
         return Err(format!("{}: no rows", path.display()));
     }
-    let out_svg = crate::workspace_root().join("docs").join("faces_accuracy.svg");
+    let out_svg = crate::workspace::workspace_root().join("docs").join("faces_accuracy.svg");
     chart(&rows, &out_svg)?;
     print_table(&rows);
     println!("wrote {}", out_svg.display());

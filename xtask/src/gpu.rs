@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use crate::{run, target_dir, workspace_root};
+use crate::workspace::{run, target_dir, workspace_root};
 
 /// The features of the wgpu build: the CLI's, which turn on the facade's and w3d-diffusion's.
 const FEATURES: &str = "wonder3d-cli/wgpu";

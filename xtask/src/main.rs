@@ -25,6 +25,12 @@
 //!   closed mesh, the teapot and the teacups (`target/bench/refine_all_<size>.json`).
 //! - `cargo xtask build-parity`: fails if a dependency of the README's demo build would be
 //!   compiled again, with other features, by the test command.
+//! - `cargo xtask layers [--root DIR] [--verbose]`: the import-layering check over every
+//!   package's `src/` (`crates/*`, `xtask`): fails on a module importing a module declared in a
+//!   higher `mod` group of a common ancestor (groups: runs of `mod` lines split by blank or
+//!   comment lines, listed bottom-up), on a module importing its ancestor's own file, and on
+//!   any import circle between files (`src/layers.rs` has the rules); `--verbose` lists each
+//!   crate's files by level.
 //! - `cargo xtask package [--verify]`: `cargo package` of every publishable crate in
 //!   dependency order (what `cargo publish` would upload); `--verify` also builds each from
 //!   its archive (CI runs it without, the full check is run by hand before a release).
@@ -69,12 +75,18 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
 
 use clap::{Parser, Subcommand};
+use workspace::{cpu_model, run, target_dir, workspace_root};
 
+// Where the workspace is and how commands run; every task below uses it.
+mod workspace;
+
+// The tasks.
 mod chart;
 mod curve;
 mod eval_small;
 mod faces_chart;
 mod gpu;
+mod layers;
 mod recon;
 mod recon_spread;
 mod refine_table;
@@ -311,6 +323,16 @@ enum Task {
     /// Check that every dependency the README's demo command compiles is compiled with the
     /// same features by the test command (so the tests reuse it instead of rebuilding it).
     BuildParity,
+    /// Check the import layering of every package's `src/`: no module imports one declared in
+    /// a higher `mod` group, or its ancestor's file, and no files import each other in a circle.
+    Layers {
+        /// The checkout to check (default: this repository).
+        #[arg(long)]
+        root: Option<PathBuf>,
+        /// Also list each crate's files by level (level 0 imports nothing of its crate).
+        #[arg(long)]
+        verbose: bool,
+    },
     /// Package every publishable crate in dependency order (`cargo package --workspace`),
     /// as `cargo publish` would; `--verify` also builds each packaged crate from its archive.
     Package {
@@ -337,15 +359,6 @@ enum Task {
         #[arg(long)]
         triangles: Option<usize>,
     },
-}
-
-fn workspace_root() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().expect("xtask lives in the workspace").to_path_buf()
-}
-
-fn run(cmd: &mut Command) -> Result<(), String> {
-    let status = cmd.status().map_err(|e| format!("cannot start {cmd:?}: {e}"))?;
-    if status.success() { Ok(()) } else { Err(format!("{cmd:?} failed with {status}")) }
 }
 
 /// `cargo-deny` from `PATH`, if it runs.
@@ -375,10 +388,6 @@ fn deny() -> Result<(), String> {
     ]))
 }
 
-fn target_dir() -> PathBuf {
-    std::env::var_os("CARGO_TARGET_DIR").map(PathBuf::from).unwrap_or_else(|| workspace_root().join("target"))
-}
-
 /// Every `new/estimates.json` under `dir` written after `since`, with its benchmark id.
 fn fresh_estimates(dir: &Path, since: std::time::SystemTime, out: &mut Vec<(String, PathBuf)>) {
     let Ok(entries) = std::fs::read_dir(dir) else { return };
@@ -398,17 +407,6 @@ fn fresh_estimates(dir: &Path, since: std::time::SystemTime, out: &mut Vec<(Stri
             out.push((id, path));
         }
     }
-}
-
-fn cpu_model() -> String {
-    std::fs::read_to_string("/proc/cpuinfo")
-        .ok()
-        .and_then(|t| {
-            t.lines()
-                .find(|l| l.starts_with("model name"))
-                .map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string())
-        })
-        .unwrap_or_else(|| "unknown CPU".into())
 }
 
 /// The UNet forward rows of the diffusion suite as GFLOP/s and as a fraction of the f32 GEMM
@@ -824,6 +822,7 @@ fn main() -> ExitCode {
         }
         Task::Package { verify } => package(verify),
         Task::BuildParity => build_parity(),
+        Task::Layers { root, verbose } => layers::run(&root.unwrap_or_else(workspace_root), verbose),
         Task::ValidateGlb { files } => validate_glb(&files),
         Task::LoadGlb { files, vertices, triangles } => load_glb(&files, vertices, triangles),
         Task::Fixtures { which } => fixtures(&which),

@@ -6,11 +6,12 @@
 //! A full run (no `--meshes` filter) also writes `docs/accuracy.md`.
 //!
 //! Arguments (after `--`): `--meshes a,b` (file stems), `--cases ortho,persp,presets,
-//! concave,stability,robustness` (default all; `robustness` is `crate::robust`), `--size N` (default 256), `--docs-from-json` (rewrite
+//! concave,stability,robustness` (default all; `robustness`: the cases of `crate::robust`), `--size N` (default 256), `--docs-from-json` (rewrite
 //! `docs/accuracy.md` from the last `target/bench/recon.json` without reconstructing),
 //! `--texture` (novel-view texture fidelity of reconstructed spot and bob →
 //! `target/bench/recon_texture.json`, included in `docs/accuracy.md`).
 
+use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::path::Path;
 use std::time::Instant;
 
@@ -19,6 +20,8 @@ use wonder3d::eval::{EvalOptions, evaluate};
 use wonder3d::raster::render_oracle_views;
 use wonder3d::recon::{Preset, ReconOptions, reconstruct};
 use wonder3d::{Mesh, ViewRig, ViewSet, load_mesh};
+
+use crate::robust;
 
 /// The 14 closed meshes of `../shared/data/meshes` (the ones volume IoU is defined for).
 pub(crate) const CLOSED: &[&str] = &[
@@ -227,7 +230,7 @@ fn texture_cases(size: u32) -> Result<(), String> {
     let rig = ViewRig::wonder3d_ortho();
     let mut rows = Vec::new();
     for file in ["spot.obj", "bob_tri.obj"] {
-        let path = crate::workspace_root().join("assets").join(file);
+        let path = crate::workspace::workspace_root().join("assets").join(file);
         let mut truth = load_mesh(&path).map_err(|e| e.to_string())?;
         truth.normalize_unit_cube();
         let views = render_oracle_views(&truth, &rig, size).map_err(|e| e.to_string())?;
@@ -249,8 +252,8 @@ fn texture_cases(size: u32) -> Result<(), String> {
             "ssim_true_geometry": ssim_truth,
         }));
     }
-    let out = crate::target_dir().join("bench").join("recon_texture.json");
-    std::fs::create_dir_all(crate::target_dir().join("bench")).map_err(|e| e.to_string())?;
+    let out = crate::workspace::target_dir().join("bench").join("recon_texture.json");
+    std::fs::create_dir_all(crate::workspace::target_dir().join("bench")).map_err(|e| e.to_string())?;
     std::fs::write(&out, serde_json::to_string_pretty(&rows).unwrap_or_default())
         .map_err(|e| format!("{}: {e}", out.display()))?;
     eprintln!("wrote {}", out.display());
@@ -276,7 +279,7 @@ pub fn run(args: &[String]) -> Result<(), String> {
             other => return Err(format!("unknown argument {other:?} (see xtask/src/recon.rs)")),
         }
     }
-    let root = crate::workspace_root();
+    let root = crate::workspace::workspace_root();
     let data = root.join("../shared/data/meshes");
     let wanted =
         |file: &str| meshes.as_ref().is_none_or(|m| m.iter().any(|w| file.starts_with(&format!("{w}.")) || file == w));
@@ -326,13 +329,13 @@ pub fn run(args: &[String]) -> Result<(), String> {
         }
     }
     if cases.contains(&"robustness") {
-        runs.extend(crate::robust::run_cases(&data, size, &wanted)?);
+        runs.extend(robustness_runs(&data, size, &wanted)?);
     }
-    let out_dir = crate::target_dir().join("bench");
+    let out_dir = crate::workspace::target_dir().join("bench");
     std::fs::create_dir_all(&out_dir).map_err(|e| format!("{}: {e}", out_dir.display()))?;
     let out = out_dir.join("recon.json");
     let all: Vec<&Value> = runs.iter().map(|r| &r.value).collect();
-    let doc = json!({ "size": size, "machine": crate::cpu_model(), "runs": all });
+    let doc = json!({ "size": size, "machine": crate::workspace::cpu_model(), "runs": all });
     std::fs::write(&out, serde_json::to_string_pretty(&doc).unwrap_or_default())
         .map_err(|e| format!("{}: {e}", out.display()))?;
     eprintln!("wrote {}", out.display());
@@ -341,7 +344,7 @@ pub fn run(args: &[String]) -> Result<(), String> {
         std::fs::write(&md, accuracy_markdown(&runs, size)).map_err(|e| format!("{}: {e}", md.display()))?;
         eprintln!("wrote {}", md.display());
     }
-    let failed = crate::robust::failures(&runs);
+    let failed = robustness_failures(&runs);
     if !failed.is_empty() {
         return Err(format!("robustness cells broke an invariant:\n{}", failed.join("\n")));
     }
@@ -451,7 +454,7 @@ table (view loss 0.067 → 0.102); every other cell of the ortho table moved by 
 /// Rewrites `docs/accuracy.md` from the last full run's `target/bench/recon.json` (after
 /// editing the prose, without reconstructing again).
 fn docs_from_json() -> Result<(), String> {
-    let path = crate::target_dir().join("bench").join("recon.json");
+    let path = crate::workspace::target_dir().join("bench").join("recon.json");
     let text = std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
     let doc: Value = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
     let size = doc["size"].as_u64().ok_or(format!("{}: no size", path.display()))? as u32;
@@ -461,7 +464,7 @@ fn docs_from_json() -> Result<(), String> {
         let preset: Preset = text("preset").parse().map_err(|e| format!("{}: {e}", path.display()))?;
         runs.push(Run { name: text("mesh"), case: text("case"), rig: text("rig"), preset, value: v.clone() });
     }
-    let md = crate::workspace_root().join("docs/accuracy.md");
+    let md = crate::workspace::workspace_root().join("docs/accuracy.md");
     std::fs::write(&md, accuracy_markdown(&runs, size)).map_err(|e| format!("{}: {e}", md.display()))?;
     eprintln!("wrote {}", md.display());
     Ok(())
@@ -567,7 +570,7 @@ fn accuracy_markdown(runs: &[Run], size: u32) -> String {
          `w3d_recon::reconstruct` with the preset named, evaluated by `w3d-eval` against the \
          normalised original (100k samples, no alignment). Machine: {}. Seconds are wall-clock \
          for init + coarse on 2 cores.\n\n",
-        crate::cpu_model()
+        crate::workspace::cpu_model()
     );
     s.push_str("## Wonder3D orthographic rig, default preset\n\n");
     s.push_str(&table(&pick("oracle", "ortho", Preset::Default)));
@@ -610,7 +613,7 @@ fn accuracy_markdown(runs: &[Run], size: u32) -> String {
             v["truth_view_loss"].as_f64().map_or("–".into(), |x| format!("{x:.4}")),
         ));
     }
-    let texture_json = crate::target_dir().join("bench").join("recon_texture.json");
+    let texture_json = crate::workspace::target_dir().join("bench").join("recon_texture.json");
     if let Ok(text) = std::fs::read_to_string(&texture_json)
         && let Ok(Value::Array(rows)) = serde_json::from_str::<Value>(&text)
     {
@@ -650,6 +653,174 @@ fn accuracy_markdown(runs: &[Run], size: u32) -> String {
             f(v, &["seconds"]),
         ));
     }
-    s.push_str(&crate::robust::markdown(runs));
+    s.push_str(&robustness_markdown(runs));
+    s
+}
+
+/// Runs every robustness case ([`robust::CASES`]) on the meshes of [`robust::MESHES`] that
+/// `wanted` accepts.
+fn robustness_runs(data: &Path, size: u32, wanted: &dyn Fn(&str) -> bool) -> Result<Vec<Run>, String> {
+    let rig = ViewRig::wonder3d_ortho();
+    let mut runs = Vec::new();
+    for (index, file) in robust::MESHES.iter().enumerate() {
+        if !wanted(file) {
+            continue;
+        }
+        let name = file.split('.').next().unwrap_or(file);
+        let truth = load_normalised(data, file)?;
+        let clean = render_oracle_views(&truth, &rig, size).map_err(|e| e.to_string())?;
+        for &case in robust::CASES {
+            // (truth the views show, its scale, the views)
+            let perturbed: Result<(Mesh, f32, ViewSet), String> = match case {
+                "noise σ=0" => Ok((truth.clone(), 1.0, clean.clone())),
+                "noise σ=0.05" | "noise σ=0.15" | "noise σ=0.3" => {
+                    let sigma: f32 = case.trim_start_matches("noise σ=").parse().map_err(|e| format!("{e}"))?;
+                    with_normal_noise(clean.clone(), sigma, robust::NOISE_SEED + index as u64)
+                        .map(|v| (truth.clone(), 1.0, v))
+                }
+                "blur σ=2 px" => robust::with_blurred_normals(clean.clone(), 2.0).map(|v| (truth.clone(), 1.0, v)),
+                "wrong view" => {
+                    let donor = load_normalised(data, robust::MESHES[(index + 1) % robust::MESHES.len()])?;
+                    let donor_views = render_oracle_views(&donor, &rig, size).map_err(|e| e.to_string())?;
+                    robust::with_view_from(clean.clone(), &donor_views, "front_right").map(|v| (truth.clone(), 1.0, v))
+                }
+                "missing view (left)" | "missing view (front)" => {
+                    let missing = if case.contains("left") { "left" } else { "front" };
+                    let keep: Vec<&str> = rig.views.iter().map(|v| v.name.as_str()).filter(|&n| n != missing).collect();
+                    clean.subset(keep).map(|v| (truth.clone(), 1.0, v)).map_err(|e| e.to_string())
+                }
+                "exposure per view" => {
+                    robust::with_exposures(clean.clone(), &robust::EXPOSURES).map(|v| (truth.clone(), 1.0, v))
+                }
+                "object at 40 % of the frame" | "object at 95 % of the frame" => {
+                    let fraction = if case.contains("40") { 0.40 } else { 0.95 };
+                    let (scaled, scale) = robust::scaled_to_frame(&truth, &rig, size, fraction)?;
+                    let views = render_oracle_views(&scaled, &rig, size).map_err(|e| e.to_string())?;
+                    Ok((scaled, scale, views))
+                }
+                "views at 128²" | "views at 512²" => {
+                    let s = if case.contains("128") { 128 } else { 512 };
+                    render_oracle_views(&truth, &rig, s).map(|v| (truth.clone(), 1.0, v)).map_err(|e| e.to_string())
+                }
+                other => Err(format!("unknown robustness case {other}")),
+            };
+            let label = format!("{}{case}", robust::PREFIX);
+            let run = match perturbed {
+                Ok((truth, scale, views)) => checked_score(name, &label, &truth, scale, &views),
+                Err(e) => failed_run(name, &label, "error", e),
+            };
+            runs.push(run);
+        }
+    }
+    Ok(runs)
+}
+
+/// [`score_scaled`] with a panic or an error recorded in the run instead of ending the bench.
+fn checked_score(name: &str, case: &str, truth: &Mesh, scale: f32, views: &ViewSet) -> Run {
+    match catch_unwind(AssertUnwindSafe(|| score_scaled(name, case, "ortho", truth, views, Preset::Default, scale))) {
+        Ok(Ok(run)) => run,
+        Ok(Err(e)) => failed_run(name, case, "error", e),
+        Err(panic) => {
+            let message = panic
+                .downcast_ref::<String>()
+                .cloned()
+                .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
+                .unwrap_or_else(|| "a panic without a message".into());
+            eprintln!("{name:>24} {case}: PANIC {message}");
+            failed_run(name, case, "panic", message)
+        }
+    }
+}
+
+fn failed_run(name: &str, case: &str, kind: &str, message: String) -> Run {
+    Run {
+        name: name.into(),
+        case: case.into(),
+        rig: "ortho".into(),
+        preset: Preset::Default,
+        value: json!({ "mesh": name, "case": case, "rig": "ortho", "preset": Preset::Default, kind: message }),
+    }
+}
+
+/// The robustness cells that broke an invariant, as `mesh, case: what` lines.
+fn robustness_failures(runs: &[Run]) -> Vec<String> {
+    runs.iter()
+        .filter(|r| robust::is_robustness(&r.case))
+        .flat_map(|r| {
+            robust::broken(&r.value)
+                .into_iter()
+                .map(move |b| format!("{}, {}: {b}", r.name, r.case.trim_start_matches(robust::PREFIX)))
+        })
+        .collect()
+}
+
+/// The robustness section of `docs/accuracy.md` (empty without robustness runs).
+fn robustness_markdown(runs: &[Run]) -> String {
+    let cells: Vec<&Run> = runs.iter().filter(|r| robust::is_robustness(&r.case)).collect();
+    if cells.is_empty() {
+        return String::new();
+    }
+    let mut meshes: Vec<&str> = Vec::new();
+    for r in &cells {
+        if !meshes.contains(&r.name.as_str()) {
+            meshes.push(&r.name);
+        }
+    }
+    let mut s = String::from("\n## Robustness (orthographic rig, default preset)\n\n");
+    s.push_str(robust::PROSE);
+    s.push_str("| perturbation |");
+    for m in &meshes {
+        s.push_str(&format!(" {m} |"));
+    }
+    s.push_str(" mean CD | mean IoU | mean seconds | panic / error / NaN / crossings |\n|---|");
+    s.push_str(&"---|".repeat(meshes.len() + 4));
+    s.push('\n');
+    for case in robust::CASES {
+        let label = format!("{}{case}", robust::PREFIX);
+        let row: Vec<&&Run> = cells.iter().filter(|r| r.case == label).collect();
+        if row.is_empty() {
+            continue;
+        }
+        s.push_str(&format!("| {case} |"));
+        let (mut cd, mut iou, mut seconds, mut n) = (0.0, 0.0, 0.0, 0.0);
+        let (mut problems, mut reruns) = (Vec::new(), Vec::new());
+        for m in &meshes {
+            match row.iter().find(|r| r.name == *m) {
+                Some(r)
+                    if robust::broken(&r.value).iter().all(|b| !b.starts_with("panic") && !b.starts_with("error")) =>
+                {
+                    let v = &r.value;
+                    let (c, i, t) = (f(v, &["metrics", "chamfer"]), f(v, &["metrics", "iou_64"]), f(v, &["seconds"]));
+                    s.push_str(&format!(" {c:.4} / {i:.3} / {t:.1} |"));
+                    cd += c;
+                    iou += i;
+                    seconds += t;
+                    n += 1.0;
+                    problems.extend(robust::broken(v).into_iter().map(|b| format!("{m}: {b}")));
+                    if let Some(n) = v["coarse_reseeds"].as_u64().filter(|&n| n > 0) {
+                        let repairs = if v["remesh_repairs"].as_bool() == Some(true) { ", repairs" } else { "" };
+                        reruns.push(format!("{m} {n}{repairs}"));
+                    }
+                }
+                Some(r) => {
+                    s.push_str(" – |");
+                    problems.extend(robust::broken(&r.value).into_iter().map(|b| format!("{m}: {b}")));
+                }
+                None => s.push_str(" |"),
+            }
+        }
+        let mean = |x: f64| if n > 0.0 { x / n } else { f64::NAN };
+        let mut checks = if problems.is_empty() { "none".to_string() } else { problems.join("; ") };
+        if !reruns.is_empty() {
+            checks.push_str(&format!(" (coarse reruns: {})", reruns.join(", ")));
+        }
+        s.push_str(&format!(" {:.4} | {:.3} | {:.1} | {checks} |\n", mean(cd), mean(iou), mean(seconds)));
+    }
+    let failed = robustness_failures(runs);
+    s.push_str(&if failed.is_empty() {
+        format!("\nAll {} cells: no panic, no error, no NaN, no self-intersection.\n", cells.len())
+    } else {
+        format!("\n**{} of {} cells broke an invariant** (listed in the last column).\n", failed.len(), cells.len())
+    });
     s
 }

@@ -29,7 +29,7 @@ pub(crate) fn run(views_root: &Path, objects: &str, seeds: u64, starts: usize, r
     if seeds == 0 {
         return Err("--seeds: at least 1".into());
     }
-    let root = crate::workspace_root();
+    let root = crate::workspace::workspace_root();
     let truth = views_root.as_os_str() == "truth";
     for mesh_path in pick_objects(Some(objects))? {
         let name = object_name(mesh_path);

@@ -55,7 +55,7 @@ pub(crate) fn truth(name: &str, file: &str) -> Result<Mesh, String> {
     if file.is_empty() {
         return wonder3d::demo::bundled_spot().map_err(|e| e.to_string());
     }
-    let dir = crate::workspace_root().join("../shared/data/meshes");
+    let dir = crate::workspace::workspace_root().join("../shared/data/meshes");
     let mesh = load_normalised(&dir, file)?;
     let colours = wonder3d::dataset::procedural_colours(mesh.positions(), name);
     mesh.with_colours(colours).map_err(|e| e.to_string())
@@ -186,7 +186,7 @@ pub(crate) fn run(
             rows.push(row);
         }
     }
-    let out = crate::target_dir().join("bench");
+    let out = crate::workspace::target_dir().join("bench");
     std::fs::create_dir_all(&out).map_err(|e| format!("{}: {e}", out.display()))?;
     let path = out.join("refine.json");
     let report = json!({
@@ -261,7 +261,7 @@ fn table(rows: &[Value]) -> String {
 
 /// The meshes of the sweep: (table name, truth with procedural colours).
 fn sweep_meshes(wanted: Option<&[&str]>) -> Result<Vec<(String, Mesh)>, String> {
-    let dir = crate::workspace_root().join("../shared/data/meshes");
+    let dir = crate::workspace::workspace_root().join("../shared/data/meshes");
     let keep = |file: &str| wanted.is_none_or(|w| w.iter().any(|m| file.split('.').next() == Some(m)));
     let mut out = Vec::new();
     for file in CLOSED.iter().filter(|f| keep(f)) {
@@ -369,7 +369,7 @@ fn sweep(
         return Err(format!("--rig {only_rig:?}: expected ortho or persp"));
     }
     let rig_arg = only_rig.map(|r| format!(" --rig {r}")).unwrap_or_default();
-    let path = crate::target_dir().join("bench");
+    let path = crate::workspace::target_dir().join("bench");
     std::fs::create_dir_all(&path).map_err(|e| format!("{}: {e}", path.display()))?;
     let path = path.join(format!("refine_all_{size}.json"));
     let start = Instant::now();
@@ -411,7 +411,7 @@ fn sweep(
                 "command": format!("cargo xtask refine-table --all{rig_arg} --size {size}"),
                 "mesh_refinement": mesh_refinement_json(&mesh_options),
                 "input": { "size": INPUT_SIZE, "normal_noise_sigma": SIGMA },
-                "machine": crate::cpu_model(),
+                "machine": crate::workspace::cpu_model(),
                 "seconds": start.elapsed().as_secs_f64(),
                 "rows": rows,
             });

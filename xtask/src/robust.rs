@@ -1,5 +1,7 @@
-//! `cargo xtask bench recon -- --cases robustness`: reconstruction from perturbed oracle
-//! views (issue #23 item 5), the robustness table of `docs/accuracy.md`.
+//! The cases of `cargo xtask bench recon -- --cases robustness` (issue #23 item 5, the
+//! robustness table of `docs/accuracy.md`): the meshes, the perturbations of their oracle
+//! views and what counts as a broken cell. The bench that runs and scores them is
+//! `crate::recon`.
 //!
 //! Six meshes, each normalised to the unit cube and rendered into the orthographic
 //! Wonder3D rig, reconstructed with the default preset from views perturbed one way at a
@@ -7,23 +9,16 @@
 //! coordinate, an error or a self-intersection; the bench records each cell, writes the
 //! table, and fails at the end if any cell broke one of those.
 
-use std::panic::{AssertUnwindSafe, catch_unwind};
-use std::path::Path;
-
 use glam::Vec3;
-use serde_json::{Value, json};
-use wonder3d::raster::render_oracle_views;
-use wonder3d::recon::Preset;
+use serde_json::Value;
 use wonder3d::{Mesh, ViewRig, ViewSet};
-
-use crate::recon::{Run, f, load_normalised, score_scaled, with_normal_noise};
 
 /// The meshes of the robustness table (smooth, detailed, thin and sharp-edged objects).
 pub(crate) const MESHES: &[&str] =
     &["spot.obj", "armadillo.obj", "koala_low_resolution.obj", "horse.ply", "plane.obj", "fandisk.obj"];
 
 /// The perturbations, in table order.
-const CASES: &[&str] = &[
+pub(crate) const CASES: &[&str] = &[
     "noise σ=0",
     "noise σ=0.05",
     "noise σ=0.15",
@@ -41,13 +36,13 @@ const CASES: &[&str] = &[
 
 /// Prefix of the robustness runs' case names in `recon.json` (kept apart from the
 /// stability runs, whose case names start with `noise`).
-const PREFIX: &str = "robustness: ";
+pub(crate) const PREFIX: &str = "robustness: ";
 
 /// Seed of the normal noise (one per mesh: the seed plus the mesh's index).
-const NOISE_SEED: u64 = 23;
+pub(crate) const NOISE_SEED: u64 = 23;
 
 /// Exposure of each view's colour image in stops (view order of the rig).
-const EXPOSURES: [f32; 6] = [0.0, 1.0, -1.0, 0.5, -1.5, 2.0];
+pub(crate) const EXPOSURES: [f32; 6] = [0.0, 1.0, -1.0, 0.5, -1.5, 2.0];
 
 /// What each row of the table does to the views, for the docs.
 pub(crate) const PROSE: &str = "Each mesh normalised to the unit cube, rendered into the orthographic Wonder3D rig \
@@ -80,87 +75,6 @@ fandisk at 95 % of the frame 55, and with reruns that only change the seed 4, 18
 wrong view is the one perturbation that costs real accuracy (mean CD 0.017 against 0.004), and the fandisk's \
 Poisson start is poor at other scales (silhouette IoU 0.60–0.63 against 0.84; the 40 % cell's CD 0.012).\n\n";
 
-/// Runs every robustness case on the meshes of [`MESHES`] that `wanted` accepts.
-pub(crate) fn run_cases(data: &Path, size: u32, wanted: &dyn Fn(&str) -> bool) -> Result<Vec<Run>, String> {
-    let rig = ViewRig::wonder3d_ortho();
-    let mut runs = Vec::new();
-    for (index, file) in MESHES.iter().enumerate() {
-        if !wanted(file) {
-            continue;
-        }
-        let name = file.split('.').next().unwrap_or(file);
-        let truth = load_normalised(data, file)?;
-        let clean = render_oracle_views(&truth, &rig, size).map_err(|e| e.to_string())?;
-        for &case in CASES {
-            // (truth the views show, its scale, the views)
-            let perturbed: Result<(Mesh, f32, ViewSet), String> = match case {
-                "noise σ=0" => Ok((truth.clone(), 1.0, clean.clone())),
-                "noise σ=0.05" | "noise σ=0.15" | "noise σ=0.3" => {
-                    let sigma: f32 = case.trim_start_matches("noise σ=").parse().map_err(|e| format!("{e}"))?;
-                    with_normal_noise(clean.clone(), sigma, NOISE_SEED + index as u64).map(|v| (truth.clone(), 1.0, v))
-                }
-                "blur σ=2 px" => with_blurred_normals(clean.clone(), 2.0).map(|v| (truth.clone(), 1.0, v)),
-                "wrong view" => {
-                    let donor = load_normalised(data, MESHES[(index + 1) % MESHES.len()])?;
-                    let donor_views = render_oracle_views(&donor, &rig, size).map_err(|e| e.to_string())?;
-                    with_view_from(clean.clone(), &donor_views, "front_right").map(|v| (truth.clone(), 1.0, v))
-                }
-                "missing view (left)" | "missing view (front)" => {
-                    let missing = if case.contains("left") { "left" } else { "front" };
-                    let keep: Vec<&str> = rig.views.iter().map(|v| v.name.as_str()).filter(|&n| n != missing).collect();
-                    clean.subset(keep).map(|v| (truth.clone(), 1.0, v)).map_err(|e| e.to_string())
-                }
-                "exposure per view" => with_exposures(clean.clone(), &EXPOSURES).map(|v| (truth.clone(), 1.0, v)),
-                "object at 40 % of the frame" | "object at 95 % of the frame" => {
-                    let fraction = if case.contains("40") { 0.40 } else { 0.95 };
-                    let (scaled, scale) = scaled_to_frame(&truth, &rig, size, fraction)?;
-                    let views = render_oracle_views(&scaled, &rig, size).map_err(|e| e.to_string())?;
-                    Ok((scaled, scale, views))
-                }
-                "views at 128²" | "views at 512²" => {
-                    let s = if case.contains("128") { 128 } else { 512 };
-                    render_oracle_views(&truth, &rig, s).map(|v| (truth.clone(), 1.0, v)).map_err(|e| e.to_string())
-                }
-                other => Err(format!("unknown robustness case {other}")),
-            };
-            let label = format!("{PREFIX}{case}");
-            let run = match perturbed {
-                Ok((truth, scale, views)) => checked_score(name, &label, &truth, scale, &views),
-                Err(e) => failed_run(name, &label, "error", e),
-            };
-            runs.push(run);
-        }
-    }
-    Ok(runs)
-}
-
-/// [`score_scaled`] with a panic or an error recorded in the run instead of ending the bench.
-fn checked_score(name: &str, case: &str, truth: &Mesh, scale: f32, views: &ViewSet) -> Run {
-    match catch_unwind(AssertUnwindSafe(|| score_scaled(name, case, "ortho", truth, views, Preset::Default, scale))) {
-        Ok(Ok(run)) => run,
-        Ok(Err(e)) => failed_run(name, case, "error", e),
-        Err(panic) => {
-            let message = panic
-                .downcast_ref::<String>()
-                .cloned()
-                .or_else(|| panic.downcast_ref::<&str>().map(|s| s.to_string()))
-                .unwrap_or_else(|| "a panic without a message".into());
-            eprintln!("{name:>24} {case}: PANIC {message}");
-            failed_run(name, case, "panic", message)
-        }
-    }
-}
-
-fn failed_run(name: &str, case: &str, kind: &str, message: String) -> Run {
-    Run {
-        name: name.into(),
-        case: case.into(),
-        rig: "ortho".into(),
-        preset: Preset::Default,
-        value: json!({ "mesh": name, "case": case, "rig": "ortho", "preset": Preset::Default, kind: message }),
-    }
-}
-
 /// Whether `case` is a robustness case name as stored in the runs.
 pub(crate) fn is_robustness(case: &str) -> bool {
     case.starts_with(PREFIX)
@@ -168,7 +82,7 @@ pub(crate) fn is_robustness(case: &str) -> bool {
 
 /// What broke in a robustness cell: a panic, an error, NaN coordinates or crossing
 /// triangles (empty when none did).
-fn broken(v: &Value) -> Vec<String> {
+pub(crate) fn broken(v: &Value) -> Vec<String> {
     let mut out = Vec::new();
     for kind in ["panic", "error"] {
         if let Some(m) = v.get(kind) {
@@ -184,88 +98,9 @@ fn broken(v: &Value) -> Vec<String> {
     out
 }
 
-/// The robustness cells that broke an invariant, as `mesh, case: what` lines.
-pub(crate) fn failures(runs: &[Run]) -> Vec<String> {
-    runs.iter()
-        .filter(|r| is_robustness(&r.case))
-        .flat_map(|r| {
-            broken(&r.value).into_iter().map(move |b| format!("{}, {}: {b}", r.name, r.case.trim_start_matches(PREFIX)))
-        })
-        .collect()
-}
-
-/// The robustness section of `docs/accuracy.md` (empty without robustness runs).
-pub(crate) fn markdown(runs: &[Run]) -> String {
-    let robust: Vec<&Run> = runs.iter().filter(|r| is_robustness(&r.case)).collect();
-    if robust.is_empty() {
-        return String::new();
-    }
-    let mut meshes: Vec<&str> = Vec::new();
-    for r in &robust {
-        if !meshes.contains(&r.name.as_str()) {
-            meshes.push(&r.name);
-        }
-    }
-    let mut s = String::from("\n## Robustness (orthographic rig, default preset)\n\n");
-    s.push_str(PROSE);
-    s.push_str("| perturbation |");
-    for m in &meshes {
-        s.push_str(&format!(" {m} |"));
-    }
-    s.push_str(" mean CD | mean IoU | mean seconds | panic / error / NaN / crossings |\n|---|");
-    s.push_str(&"---|".repeat(meshes.len() + 4));
-    s.push('\n');
-    for case in CASES {
-        let label = format!("{PREFIX}{case}");
-        let row: Vec<&&Run> = robust.iter().filter(|r| r.case == label).collect();
-        if row.is_empty() {
-            continue;
-        }
-        s.push_str(&format!("| {case} |"));
-        let (mut cd, mut iou, mut seconds, mut n) = (0.0, 0.0, 0.0, 0.0);
-        let (mut problems, mut reruns) = (Vec::new(), Vec::new());
-        for m in &meshes {
-            match row.iter().find(|r| r.name == *m) {
-                Some(r) if broken(&r.value).iter().all(|b| !b.starts_with("panic") && !b.starts_with("error")) => {
-                    let v = &r.value;
-                    let (c, i, t) = (f(v, &["metrics", "chamfer"]), f(v, &["metrics", "iou_64"]), f(v, &["seconds"]));
-                    s.push_str(&format!(" {c:.4} / {i:.3} / {t:.1} |"));
-                    cd += c;
-                    iou += i;
-                    seconds += t;
-                    n += 1.0;
-                    problems.extend(broken(v).into_iter().map(|b| format!("{m}: {b}")));
-                    if let Some(n) = v["coarse_reseeds"].as_u64().filter(|&n| n > 0) {
-                        let repairs = if v["remesh_repairs"].as_bool() == Some(true) { ", repairs" } else { "" };
-                        reruns.push(format!("{m} {n}{repairs}"));
-                    }
-                }
-                Some(r) => {
-                    s.push_str(" – |");
-                    problems.extend(broken(&r.value).into_iter().map(|b| format!("{m}: {b}")));
-                }
-                None => s.push_str(" |"),
-            }
-        }
-        let mean = |x: f64| if n > 0.0 { x / n } else { f64::NAN };
-        let mut checks = if problems.is_empty() { "none".to_string() } else { problems.join("; ") };
-        if !reruns.is_empty() {
-            checks.push_str(&format!(" (coarse reruns: {})", reruns.join(", ")));
-        }
-        s.push_str(&format!(" {:.4} | {:.3} | {:.1} | {checks} |\n", mean(cd), mean(iou), mean(seconds)));
-    }
-    let failed = failures(runs);
-    s.push_str(&if failed.is_empty() {
-        format!("\nAll {} cells: no panic, no error, no NaN, no self-intersection.\n", robust.len())
-    } else {
-        format!("\n**{} of {} cells broke an invariant** (listed in the last column).\n", failed.len(), robust.len())
-    });
-    s
-}
-
 /// `views` with every normal map blurred by a Gaussian of `sigma` pixels inside its mask
 /// (normalised convolution over the foreground, separable, radius ⌈3σ⌉), renormalised.
-fn with_blurred_normals(views: ViewSet, sigma: f32) -> Result<ViewSet, String> {
+pub(crate) fn with_blurred_normals(views: ViewSet, sigma: f32) -> Result<ViewSet, String> {
     let radius = (3.0 * sigma).ceil() as i64;
     let kernel: Vec<f32> = (-radius..=radius).map(|i| (-((i * i) as f32) / (2.0 * sigma * sigma)).exp()).collect();
     let (w, h) = (views.width() as usize, views.height() as usize);
@@ -309,7 +144,7 @@ fn with_blurred_normals(views: ViewSet, sigma: f32) -> Result<ViewSet, String> {
 
 /// `views` with the view `name` (all its images) taken from `donor`, a render of another
 /// object through the same rig at the same size.
-fn with_view_from(views: ViewSet, donor: &ViewSet, name: &str) -> Result<ViewSet, String> {
+pub(crate) fn with_view_from(views: ViewSet, donor: &ViewSet, name: &str) -> Result<ViewSet, String> {
     let (rig, mut images) = views.into_parts();
     let i = images.iter().position(|v| v.name == name).ok_or(format!("no view {name}"))?;
     images[i] = donor.views()[i].clone();
@@ -318,7 +153,7 @@ fn with_view_from(views: ViewSet, donor: &ViewSet, name: &str) -> Result<ViewSet
 
 /// `views` with view `i`'s colour image exposed by `stops[i]` (linear light × 2^stops,
 /// clipped to 1, sRGB in and out).
-fn with_exposures(views: ViewSet, stops: &[f32]) -> Result<ViewSet, String> {
+pub(crate) fn with_exposures(views: ViewSet, stops: &[f32]) -> Result<ViewSet, String> {
     let to_linear = |c: f32| if c <= 0.04045 { c / 12.92 } else { ((c + 0.055) / 1.055).powf(2.4) };
     let to_srgb = |l: f32| if l <= 0.003_130_8 { 12.92 * l } else { 1.055 * l.powf(1.0 / 2.4) - 0.055 };
     let (rig, mut images) = views.into_parts();
@@ -336,7 +171,7 @@ fn with_exposures(views: ViewSet, stops: &[f32]) -> Result<ViewSet, String> {
 /// `mesh` scaled about the origin so that, in the view of `rig` where its vertices reach
 /// furthest from the image centre (along x or y), they reach `fraction` of the way to the
 /// image edge; with the scale factor.
-fn scaled_to_frame(mesh: &Mesh, rig: &ViewRig, size: u32, fraction: f32) -> Result<(Mesh, f32), String> {
+pub(crate) fn scaled_to_frame(mesh: &Mesh, rig: &ViewRig, size: u32, fraction: f32) -> Result<(Mesh, f32), String> {
     let half = size as f32 / 2.0;
     let reach = rig
         .cameras()

@@ -10,11 +10,11 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use wonder3d::dataset::{Dataset, DatasetOptions};
+use wonder3d::diffusion::train::data::{Background, EncodedSet, TrainingSet};
 use wonder3d::diffusion::train::{
     CHECKPOINT_DIR, EMA_DIR, LrSchedule, RunEvent, RunOptions, STATE_FILE, Stage, TrainOptions, VaeTrainOptions,
     run_training_encoded, train_vae,
 };
-use wonder3d::diffusion::training_set::{Background, EncodedSet, TrainingSet};
 use wonder3d::diffusion::{
     ClipVision, ClipVisionConfig, MultiViewPipeline, SchedulerConfig, UNet, UNetConfig, Vae, VaeConfig,
 };
@@ -274,7 +274,7 @@ fn phase_steps_of(steps: &[usize]) -> Result<[usize; PHASE_COUNT], String> {
 }
 
 fn config_dir() -> PathBuf {
-    crate::workspace_root().join("crates").join("w3d-diffusion").join("configs").join("small")
+    crate::workspace::workspace_root().join("crates").join("w3d-diffusion").join("configs").join("small")
 }
 
 fn err(e: impl std::fmt::Display) -> String {
@@ -313,7 +313,7 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, overrides: &Overrides) 
         overrides.unet_config.clone().unwrap_or_else(|| config_dir().join(RECIPE_UNET).join("config.json"));
     // Read now, so that a wrong path fails before the hours of training, not after the VAE.
     let unet_config = UNetConfig::from_file(&unet_config).map_err(|e| format!("--unet-config: {e}"))?;
-    let root = crate::workspace_root();
+    let root = crate::workspace::workspace_root();
     let started = Instant::now();
     let device = wonder3d::diffusion::default_device();
     std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
@@ -673,7 +673,7 @@ pub(crate) fn tune_decoder_command(model: &Path, data: &Path, out: &Path, steps:
 pub(crate) fn ship(model: &Path) -> Result<(), String> {
     let device = wonder3d::diffusion::default_device();
     let pipeline = MultiViewPipeline::from_dir(model, &device).map_err(err)?;
-    let out = crate::workspace_root().join("assets").join("model-small");
+    let out = crate::workspace::workspace_root().join("assets").join("model-small");
     pipeline.save_with(&out, wonder3d::diffusion::Precision::F16).map_err(err)?;
     let bytes: u64 = walk_sizes(&out);
     eprintln!("wrote {} ({:.1} MB, f16)", out.display(), bytes as f64 / 1e6);

@@ -36,7 +36,7 @@ enum Marker {
 }
 
 pub(crate) fn run() -> Result<(), String> {
-    let docs = crate::workspace_root().join("docs");
+    let docs = crate::workspace::workspace_root().join("docs");
     let path = docs.join("training_time.json");
     let text = std::fs::read_to_string(&path).map_err(|e| format!("{}: {e}", path.display()))?;
     let doc: Value = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;

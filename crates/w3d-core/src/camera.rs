@@ -9,7 +9,7 @@
 
 use glam::{Mat3, Mat4, Vec3};
 
-use crate::{Error, Result};
+use crate::error::{Error, Result};
 
 /// How a camera maps its 3D frame onto the image plane.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -9,7 +9,7 @@ use std::path::Path;
 #[cfg(feature = "io")]
 use image::ImageEncoder as _;
 
-use crate::{Error, Result};
+use crate::error::{Error, Result};
 
 /// A row-major float image with `channels` interleaved values per pixel, origin at the
 /// top-left. What the values mean (sRGB colour, encoded normal, mask, depth) is stated by
@@ -267,7 +267,7 @@ impl Image {
     pub fn write_png(&self, path: impl AsRef<Path>) -> Result<()> {
         let path = path.as_ref();
         let png = self.encode_png()?;
-        crate::io::write_atomic(path, |w| w.write_all(&png).map_err(|e| Error::io(path, e)))
+        crate::files::write_atomic(path, |w| w.write_all(&png).map_err(|e| Error::io(path, e)))
     }
 
     /// Reads the first RGBA layer of an OpenEXR file as a 4-channel f32 image (missing
@@ -276,7 +276,7 @@ impl Image {
     /// before anything of that size is allocated.
     pub fn read_exr(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        crate::io::check_exr_size(path)?;
+        crate::exr_limits::check_exr_size(path)?;
         let image = exr::prelude::read_first_rgba_layer_from_file(
             path,
             |resolution, _| (resolution.width(), vec![0.0f32; resolution.width() * resolution.height() * 4]),
@@ -294,8 +294,9 @@ impl Image {
         Image::new(size.width() as u32, size.height() as u32, 4, data).map_err(|e| e.in_file(path))
     }
 
-    /// Writes the image as a 32-bit float RGBA OpenEXR file, atomically. 1-channel images
-    /// are written as grey (R = G = B) with alpha 1, 3-channel images with alpha 1.
+    /// Writes the image as a 32-bit float RGBA OpenEXR file, atomically; the same image always
+    /// gives the same bytes. 1-channel images are written as grey (R = G = B) with alpha 1,
+    /// 3-channel images with alpha 1.
     pub fn write_exr(&self, path: impl AsRef<Path>) -> Result<()> {
         let path = path.as_ref();
         let c = self.channels as usize;
@@ -312,8 +313,15 @@ impl Image {
             }
         };
         let channels = exr::prelude::SpecificChannels::rgba(|exr::math::Vec2(x, y)| rgba(x, y));
-        let image = exr::prelude::Image::from_channels((w, self.height as usize), channels);
-        crate::io::write_atomic(path, |file| {
+        // Blocks in increasing order: the encoder compresses them in parallel, and with an
+        // unspecified order it writes each as it finishes, so the same image gave files that
+        // differed from run to run (same pixels, other bytes).
+        let encoding = exr::prelude::Encoding {
+            line_order: exr::prelude::LineOrder::Increasing,
+            ..exr::prelude::Encoding::default()
+        };
+        let image = exr::prelude::Image::from_encoded_channels((w, self.height as usize), encoding, channels);
+        crate::files::write_atomic(path, |file| {
             use exr::prelude::WritableImage as _;
             image.write().to_buffered(file).map_err(|e| match e {
                 exr::error::Error::Io(io) => Error::io(path, io),
@@ -341,16 +349,11 @@ impl Default for ReadLimits {
 }
 
 impl ReadLimits {
-    /// The same limits with another largest side.
-    pub fn with_max_side(mut self, max_side: u32) -> Self {
-        self.max_side = max_side;
-        self
-    }
-
-    /// The same limits with another largest pixel count.
-    pub fn with_max_pixels(mut self, max_pixels: u64) -> Self {
-        self.max_pixels = max_pixels;
-        self
+    crate::setters! {
+        /// The same limits with another largest side.
+        with_max_side(max_side: u32);
+        /// The same limits with another largest pixel count.
+        with_max_pixels(max_pixels: u64);
     }
 }
 

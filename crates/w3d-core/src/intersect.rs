@@ -6,7 +6,8 @@
 
 use std::collections::HashMap;
 
-use crate::{Error, Mesh, Result};
+use crate::error::{Error, Result};
+use crate::mesh::Mesh;
 use glam::DVec3;
 
 impl Mesh {

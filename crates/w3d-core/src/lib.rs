@@ -38,15 +38,32 @@
 //! # Ok::<(), w3d_core::Error>(())
 //! ```
 
-pub mod camera;
+// Layers, bottom-up: each group imports only from itself and the groups above it.
+// The error type; the options structs' setter macro.
 mod error;
+mod setters;
+
+// Plain helpers: file reads and atomic writes, the EXR size limit, welding by position.
+#[cfg(feature = "io")]
+mod exr_limits;
+#[cfg(feature = "io")]
+mod files;
+mod weld;
+
+// Cameras, images and normals on plain arrays; the training-set format's fixed names.
+pub mod camera;
+pub mod dataset;
 pub mod image;
+pub mod normals;
+
+// The mesh type and view rigs.
+pub mod mesh;
+pub mod rig;
+
+// Queries and collections over meshes, images and rigs; mesh file formats.
 mod intersect;
 #[cfg(feature = "io")]
 pub mod io;
-pub mod mesh;
-pub mod normals;
-pub mod rig;
 pub mod viewset;
 
 pub use camera::{Camera, Projection, Ray};

@@ -1,11 +1,10 @@
 //! Triangle meshes: validated storage, attributes and topology queries.
 
-use std::collections::HashMap;
-
 use glam::Vec3;
 
+use crate::error::{Error, Result};
 use crate::image::Image;
-use crate::{Error, Result};
+pub use crate::weld::weld_by_position;
 
 /// A triangle mesh: positions, counter-clockwise triangles (seen from outside) and
 /// optional per-vertex normals, texture coordinates, colours and a base-colour texture.
@@ -465,22 +464,6 @@ fn check_finite<'a>(field: &str, values: impl Iterator<Item = &'a f32>) -> Resul
         }
     }
     Ok(())
-}
-
-/// For each vertex, the index of its position class: vertices with bit-identical
-/// positions (−0 and +0 equal) share a class, and classes are numbered `0, 1, …` in order
-/// of first appearance. [`Mesh::merge_by_position`] builds on it; the rasteriser uses it
-/// to match edges across UV seams.
-pub fn weld_by_position(positions: &[[f32; 3]]) -> Vec<u32> {
-    let mut class_of: HashMap<[u32; 3], u32> = HashMap::with_capacity(positions.len());
-    positions
-        .iter()
-        .map(|p| {
-            let key = p.map(|v| if v == 0.0 { 0 } else { v.to_bits() });
-            let next = class_of.len() as u32;
-            *class_of.entry(key).or_insert(next)
-        })
-        .collect()
 }
 
 /// The three undirected edges `[min, max]` of a triangle.

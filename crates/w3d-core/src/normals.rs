@@ -21,7 +21,7 @@
 
 use glam::DVec3;
 
-use crate::mesh::weld_by_position;
+use crate::weld::weld_by_position;
 
 /// The unnormalised normal `(p1 − p0) × (p2 − p0)` of `triangle` (length = twice its area,
 /// in squared position units; zero for a degenerate triangle), in `f64`.

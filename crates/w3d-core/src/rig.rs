@@ -11,7 +11,7 @@ use std::path::Path;
 use glam::Vec3;
 
 use crate::camera::{Camera, Projection};
-use crate::{Error, Result};
+use crate::error::{Error, Result};
 
 /// Names of the Wonder3D views, in rig order.
 pub const WONDER3D_VIEW_NAMES: [&str; 6] = ["front", "front_right", "right", "back", "left", "front_left"];
@@ -237,13 +237,13 @@ impl ViewRig {
     pub fn save_json(&self, path: impl AsRef<Path>) -> Result<()> {
         let path = path.as_ref();
         let text = serde_json::to_string_pretty(self).expect("a rig always serialises");
-        crate::io::write_atomic(path, |w| w.write_all(text.as_bytes()).map_err(|e| Error::io(path, e)))
+        crate::files::write_atomic(path, |w| w.write_all(text.as_bytes()).map_err(|e| Error::io(path, e)))
     }
 
     /// Reads and validates a rig written by [`ViewRig::save_json`].
     pub fn load_json(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let bytes = crate::io::read_input(path)?;
+        let bytes = crate::files::read_input(path)?;
         let text = String::from_utf8(bytes)
             .map_err(|e| Error::format(path, format!("byte {}", e.utf8_error().valid_up_to()), "UTF-8 JSON text"))?;
         let rig: ViewRig = serde_json::from_str(&text).map_err(|e| {

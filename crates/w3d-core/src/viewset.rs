@@ -19,9 +19,9 @@
 #[cfg(feature = "io")]
 use std::path::Path;
 
+use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::rig::{RigView, ViewRig};
-use crate::{Error, Result};
 
 /// The images of one view. All images of a [`ViewSet`] share one size.
 #[derive(Debug, Clone, PartialEq)]
@@ -222,7 +222,7 @@ impl ViewSet {
     pub fn save_with(&self, dir: impl AsRef<Path>, extra: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
         let dir = dir.as_ref();
         ViewSet::check_output_dir(dir)?;
-        crate::io::write_dir_atomic(dir, |staging| {
+        crate::files::write_dir_atomic(dir, |staging| {
             self.write_files(staging)?;
             extra(staging)?;
             write_manifest(staging, &self.rig)
@@ -237,7 +237,7 @@ impl ViewSet {
     pub fn check_output_dir(dir: impl AsRef<Path>) -> Result<()> {
         let dir = dir.as_ref();
         let field = || format!("output folder {}", dir.display());
-        if !crate::io::replaceable_folder(dir)? {
+        if !crate::files::replaceable_folder(dir)? {
             return Ok(());
         }
         for entry in std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))? {
@@ -384,7 +384,10 @@ fn write_manifest(dir: &Path, rig: &ViewRig) -> Result<()> {
             let path = dir.join(&name);
             if path.is_file() {
                 let bytes = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
-                files.insert(name, serde_json::json!({ "bytes": bytes.len(), "fnv1a64": crate::io::fnv1a64(&bytes) }));
+                files.insert(
+                    name,
+                    serde_json::json!({ "bytes": bytes.len(), "fnv1a64": crate::files::fnv1a64(&bytes) }),
+                );
             }
         }
     }
@@ -392,7 +395,9 @@ fn write_manifest(dir: &Path, rig: &ViewRig) -> Result<()> {
     value["files"] = serde_json::Value::Object(files);
     let text = serde_json::to_string_pretty(&value).expect("JSON values serialise");
     let path = dir.join("cameras.json");
-    crate::io::write_atomic(&path, |w| std::io::Write::write_all(w, text.as_bytes()).map_err(|e| Error::io(&path, e)))
+    crate::files::write_atomic(&path, |w| {
+        std::io::Write::write_all(w, text.as_bytes()).map_err(|e| Error::io(&path, e))
+    })
 }
 
 /// The checks of [`ViewSet::load`] against the `files` list of `cameras.json`, if it has
@@ -431,7 +436,7 @@ fn check_manifest(dir: &Path, rig: &ViewRig) -> Result<()> {
             let len = std::fs::metadata(&path).map_err(|e| Error::io(&path, e))?.len();
             let matches = len == bytes && {
                 let data = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
-                crate::io::fnv1a64(&data) == hash
+                crate::files::fnv1a64(&data) == hash
             };
             if !matches {
                 return Err(Error::format(

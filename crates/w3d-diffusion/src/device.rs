@@ -15,7 +15,7 @@ use std::str::FromStr;
 
 use w3d_core::Error;
 
-use crate::Device;
+use burn::tensor::Device;
 
 /// Where the diffusion models run. `Cpu` is the default; the names are the CLI's `--device`
 /// values ([`ComputeDevice::NAMES`]).
@@ -84,7 +84,7 @@ impl ComputeDevice {
     pub fn open(self) -> Result<OpenedDevice, Error> {
         match self {
             ComputeDevice::Cpu => Ok(OpenedDevice {
-                device: crate::default_device(),
+                device: default_device(),
                 kind: self,
                 description: format!(
                     "cpu (Burn flex backend, {} threads)",
@@ -153,4 +153,18 @@ fn open_wgpu() -> Result<OpenedDevice, Error> {
 #[cfg(feature = "wgpu")]
 pub fn gpu_device() -> Option<Device> {
     ComputeDevice::Wgpu.open().ok().filter(|o| !o.software).map(|o| o.device)
+}
+
+/// The default CPU device: Burn's `flex` backend (gemm-crate matmul, rayon threads), measured
+/// faster than `ndarray` on this crate's models (see `docs/benchmarks.md`).
+pub fn default_device() -> Device {
+    Device::flex()
+}
+
+/// Burn's `ndarray` CPU backend (feature `ndarray`; deprecated in Burn 0.22): the second CPU
+/// backend the parity tests and benches run on when the feature is on.
+#[cfg(feature = "ndarray")]
+#[allow(deprecated)]
+pub fn ndarray_device() -> Device {
+    Device::ndarray()
 }

@@ -1,28 +1,33 @@
-//! Diffusion models of wonder3d-rs on Burn 0.22: the Stable-Diffusion-image-variations UNet
-//! (`UNet2DConditionModel`, with the projection class embedding Wonder3D's switchers use), the
-//! `AutoencoderKL` VAE, the CLIP vision encoder with projection and its preprocessing, the CLIP
-//! text encoder ([`ClipText`]) and its BPE tokenizer ([`ClipTokenizer`]), the IP-Adapter image
-//! prompt ([`ip_adapter`]) and the ControlNet ([`controlnet`]) of Wonder3D++'s refinement enhancer
-//! ([`enhancer`]: one joint img2img call over 2×2 grids of four views), DDIM, DPM-Solver++(2M) and UniPC sampling (UniPC
-//! also as img2img / SDEdit) with classifier-free guidance and DDIM inversion (exactly as
-//! diffusers), and
-//! streaming `.safetensors` loading with the diffusers / transformers key names. The UNet is
-//! also Wonder3D++'s multi-view cross-domain `UNetMV2DConditionModel` (config fields
-//! `num_views`, `cd_attention_mid`, `cd_attention_last`; a multi-view `config.json` lacking a
-//! field the authors' inference passes explicitly gets their value, see
-//! [`UNetConfig::from_value`]), and [`MultiViewPipeline`] turns one RGBA image into 6 views
-//! × {normal, colour} and a `w3d_core::ViewSet` ([`multiview`]). For the refinement stage's
-//! enhancer, [`ControlNet`] is diffusers' `ControlNetModel` with Wonder3D++'s cross-domain
-//! attention ([`controlnet`]); [`UNet::forward_with`] adds its residuals ([`UNetExtra`]).
+//! Diffusion models of wonder3d-rs on Burn 0.22: Wonder3D++'s multi-view cross-domain UNet
+//! (diffusers' `UNet2DConditionModel` / the authors' `UNetMV2DConditionModel`, with the
+//! switchers' projection class embedding), the `AutoencoderKL` VAE, the CLIP vision and text
+//! towers with the BPE tokenizer, and the refinement enhancer's ControlNet and IP-Adapter;
+//! DDIM (with inversion), DPM-Solver++(2M) and UniPC sampling with classifier-free guidance,
+//! exactly as diffusers; [`MultiViewPipeline`] turns one RGBA image into 6 views × {normal,
+//! colour} and a `w3d_core::ViewSet`; with the `train` feature, Wonder3D++'s three training
+//! stages.
 //!
-//! Configs deserialize the `config.json` files of a diffusers checkpoint directory as they are
-//! (apart from those multi-view defaults);
-//! weights load from f32, f16 or bf16 safetensors and every missing, unexpected or misshaped key
-//! is reported by name. Models run on any Burn device: [`default_device`] is Burn's `flex` CPU
-//! backend; the `wgpu` feature adds the GPU backend ([`ComputeDevice`] picks a device at run
-//! time, `docs/gpu.md`), and the `ndarray` feature Burn's older
-//! `ndarray` CPU backend (a second backend for the parity tests:
-//! `CARGO_TARGET_DIR=target/ndarray cargo test --release -p w3d-diffusion --features ndarray`). Convolutions run as im2col + GEMM (see [`nn::ConvAlgorithm`]).
+//! The crate is built in layers, each importing only from those below it
+//! (`docs/architecture.md` draws them):
+//!
+//! | layer | what |
+//! |---|---|
+//! | [`train`] (feature `train`) | objective, AdamW, EMA, checkpoints, training sets, VAE fine-tuning |
+//! | [`pipelines`] | guidance and noise, image → views ([`pipelines::multiview`]), the enhancer ([`pipelines::enhancer`]) |
+//! | [`schedulers`] | DDIM and its inversion, DPM-Solver++(2M), UniPC, the schedule they share |
+//! | [`models`] | UNet and its blocks, VAE, CLIP, ControlNet, IP-Adapter |
+//! | [`nn`] | linear, convolution, norms, attention, GEGLU |
+//! | kernels (private) | CPU kernels for Burn's flex backend, with their backward passes |
+//! | [`loading`], [`device`] | configs, safetensors and key names; the compute device |
+//!
+//! Configs deserialize the `config.json` files of a diffusers checkpoint as they are (a
+//! multi-view `config.json` lacking a field the authors' inference passes explicitly gets
+//! their value, see [`UNetConfig::from_value`]); weights load from f32, f16 or bf16
+//! safetensors and every missing, unexpected or misshaped key is reported by name. Models run
+//! on any Burn device: [`default_device`] is Burn's `flex` CPU backend; the `wgpu` feature adds
+//! the GPU backend ([`ComputeDevice`] picks a device at run time, `docs/gpu.md`), and the
+//! `ndarray` feature Burn's older CPU backend, a second backend for the parity tests
+//! (`docs/testing.md`).
 //!
 //! ```
 //! use w3d_diffusion::{DdimScheduler, SchedulerConfig, classifier_free_guidance, gaussian_noise};
@@ -40,70 +45,60 @@
 //! assert_eq!(latent.dims(), [1, 4, 8, 8]);
 //! ```
 
-pub mod blocks;
-pub mod clip;
-pub mod clip_text;
-pub mod config;
-pub mod controlnet;
-mod cpu_attention;
-mod cpu_conv;
-mod cpu_geglu;
-mod cpu_gemm;
-mod cpu_group_norm;
-mod cpu_linear;
-mod cpu_pool;
+// The layers of the crate, bottom up: a module imports only from its own group or the groups
+// declared before it (`cargo xtask layers` checks this; `docs/architecture.md` draws it).
+//
+// Foundations: the compute device; reading checkpoints (configs, safetensors, key names).
 pub mod device;
-pub mod enhancer;
-mod flex_autodiff;
-pub mod ip_adapter;
-pub mod multiview;
+pub mod loading;
+
+// CPU kernels for Burn's flex backend on plain slices, with their backward passes.
+mod kernels;
+
+// Neural-network layers: linear, convolution, norms, attention, GEGLU.
 pub mod nn;
-pub mod scheduler;
-pub mod tokenizer;
+
+// The models: UNet and its blocks, VAE, CLIP towers and tokenizer, ControlNet, IP-Adapter.
+pub mod models;
+
+// The samplers and the schedule they share.
+pub mod schedulers;
+
+// Pipelines: image → six views × {normal, colour}; the refinement enhancer.
+pub mod pipelines;
+
+// Training (feature `train`).
+#[cfg(feature = "train")]
 pub mod train;
-pub mod training_set;
-pub mod unet;
-pub mod vae;
-pub mod weights;
 
 pub use burn::tensor::{Device, Tensor, TensorData};
-pub use clip::{
-    CLIP_MEAN, CLIP_STD, ClipVision, preprocess as clip_preprocess,
-    preprocess_rescaled_twice as clip_preprocess_rescaled_twice,
-};
-pub use clip_text::ClipText;
-pub use config::{
+#[cfg(feature = "wgpu")]
+pub use device::gpu_device;
+#[cfg(feature = "ndarray")]
+pub use device::ndarray_device;
+pub use device::{ComputeDevice, OpenedDevice, default_device};
+pub use loading::config::{
     AUTHORS_INFERENCE_UNET_KWARGS, ClipTextConfig, ClipVisionConfig, ConfigDifference, ControlNetConfig,
     InferenceOverride, PerBlock, SchedulerConfig, UNetConfig, VaeConfig,
 };
-pub use controlnet::{ControlNet, ControlResiduals};
-#[cfg(feature = "wgpu")]
-pub use device::gpu_device;
-pub use device::{ComputeDevice, OpenedDevice};
-pub use ip_adapter::{ImageProjection, IpTokens};
-pub use multiview::{
+pub use loading::weights::{NamedParam, NamedValues, Precision, SafetensorsFile, WeightStorage};
+pub use models::blocks::IpTokens;
+pub use models::clip::text::ClipText;
+pub use models::clip::tokenizer::ClipTokenizer;
+pub use models::clip::vision::{
+    CLIP_MEAN, CLIP_STD, ClipVision, preprocess as clip_preprocess,
+    preprocess_rescaled_twice as clip_preprocess_rescaled_twice,
+};
+pub use models::controlnet::ControlNet;
+pub use models::ip_adapter::ImageProjection;
+pub use models::unet::{ControlResiduals, UNet, UNetExtra};
+pub use models::vae::Vae;
+pub use pipelines::guidance::{classifier_free_guidance, gaussian_noise};
+pub use pipelines::multiview::{
     CameraType, Conditioning, Domain, GeneratedViews, MultiViewPipeline, SampleOptions, prepare_input,
     prepare_input_on, quantize_u8, switcher_labels, task_labels,
 };
-pub use scheduler::{
-    DdimInverseScheduler, DdimScheduler, DpmSolverMultistepScheduler, Prediction, SamplerKind, UniPcMultistepScheduler,
-    classifier_free_guidance, ddim_invert, ddim_sample, gaussian_noise, img2img_begin_index,
+pub use schedulers::{
+    DdimInverseScheduler, DdimScheduler, DpmSolverMultistepScheduler, MultistepScheduler, Prediction, SamplerKind,
+    UniPcMultistepScheduler, ddim_invert, ddim_sample, img2img_begin_index,
 };
-pub use tokenizer::ClipTokenizer;
-pub use unet::{UNet, UNetExtra};
-pub use vae::Vae;
-pub use weights::{NamedParam, NamedValues, Precision, SafetensorsFile, WeightStorage};
-
-/// The default CPU device: Burn's `flex` backend (gemm-crate matmul, rayon threads), measured
-/// faster than `ndarray` on this crate's models (see `docs/benchmarks.md`).
-pub fn default_device() -> Device {
-    Device::flex()
-}
-
-/// Burn's `ndarray` CPU backend (feature `ndarray`; deprecated in Burn 0.22): the second CPU
-/// backend the parity tests and benches run on when the feature is on.
-#[cfg(feature = "ndarray")]
-#[allow(deprecated)]
-pub fn ndarray_device() -> Device {
-    Device::ndarray()
-}

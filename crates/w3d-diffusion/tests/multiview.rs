@@ -13,7 +13,7 @@ use std::collections::HashMap;
 
 use common::{fixture, max_abs, max_abs_diff, max_abs_vec, tensor, test_devices, values};
 use w3d_core::{Image, ViewSet};
-use w3d_diffusion::multiview::{DRAWS_PER_PASS, NUM_VIEWS};
+use w3d_diffusion::pipelines::multiview::{DRAWS_PER_PASS, NUM_VIEWS};
 use w3d_diffusion::{
     CameraType, Domain, GeneratedViews, MultiViewPipeline, SafetensorsFile, SampleOptions, SamplerKind, Tensor,
     TensorData, UNet, UNetConfig, WeightStorage, prepare_input, switcher_labels,

@@ -17,6 +17,7 @@ mod enhancer;
 #[path = "parity_cases/geglu.rs"]
 mod geglu;
 #[path = "parity_cases/group_norm.rs"]
+#[cfg(feature = "train")]
 mod group_norm;
 // The conv tests share this test binary (one link instead of two).
 #[path = "parity_cases/conv.rs"]
@@ -24,6 +25,7 @@ mod conv;
 #[path = "parity_cases/full_size.rs"]
 mod full_size;
 #[path = "parity_cases/linear.rs"]
+#[cfg(feature = "train")]
 mod linear;
 // The IP-Adapter (enhancer) parity and error cases.
 #[path = "parity_cases/ip_adapter.rs"]

@@ -35,32 +35,11 @@ impl Default for IcpOptions {
 /// Chainable setters, one per field: `IcpOptions::default().with_…(…)` (the struct is
 /// `#[non_exhaustive]`, so code outside this crate cannot use struct-literal syntax).
 impl IcpOptions {
-    /// These options with [`samples`](Self::samples) set to `value`.
-    #[must_use]
-    pub fn with_samples(mut self, value: usize) -> Self {
-        self.samples = value;
-        self
-    }
-
-    /// These options with [`seed`](Self::seed) set to `value`.
-    #[must_use]
-    pub fn with_seed(mut self, value: u64) -> Self {
-        self.seed = value;
-        self
-    }
-
-    /// These options with [`max_iterations`](Self::max_iterations) set to `value`.
-    #[must_use]
-    pub fn with_max_iterations(mut self, value: usize) -> Self {
-        self.max_iterations = value;
-        self
-    }
-
-    /// These options with [`tolerance`](Self::tolerance) set to `value`.
-    #[must_use]
-    pub fn with_tolerance(mut self, value: f64) -> Self {
-        self.tolerance = value;
-        self
+    w3d_core::setters! {
+        with_samples(samples: usize);
+        with_seed(seed: u64);
+        with_max_iterations(max_iterations: usize);
+        with_tolerance(tolerance: f64);
     }
 }
 

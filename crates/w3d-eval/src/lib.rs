@@ -86,25 +86,10 @@ impl Default for EvalOptions {
 /// Chainable setters, one per field: `EvalOptions::default().with_…(…)` (the struct is
 /// `#[non_exhaustive]`, so code outside this crate cannot use struct-literal syntax).
 impl EvalOptions {
-    /// These options with [`samples`](Self::samples) set to `value`.
-    #[must_use]
-    pub fn with_samples(mut self, value: usize) -> Self {
-        self.samples = value;
-        self
-    }
-
-    /// These options with [`seed`](Self::seed) set to `value`.
-    #[must_use]
-    pub fn with_seed(mut self, value: u64) -> Self {
-        self.seed = value;
-        self
-    }
-
-    /// These options with [`normalize_pred`](Self::normalize_pred) set to `value`.
-    #[must_use]
-    pub fn with_normalize_pred(mut self, value: bool) -> Self {
-        self.normalize_pred = value;
-        self
+    w3d_core::setters! {
+        with_samples(samples: usize);
+        with_seed(seed: u64);
+        with_normalize_pred(normalize_pred: bool);
     }
 }
 

@@ -143,7 +143,5 @@ mod tests {
         // 10¹¹ samples (1.2 TB) aborted the process on allocation: now a clear error.
         let err = sample_surface(&square(), 100_000_000_000, 0).unwrap_err().to_string();
         assert!(err.contains("at most 10000000"), "{err}");
-        let err = crate::evaluate(&square(), &square(), &crate::EvalOptions::default().with_samples(MAX_SAMPLES + 1));
-        assert!(err.unwrap_err().to_string().contains("options.samples"));
     }
 }

@@ -29,18 +29,9 @@ impl Default for VisibleOptions {
 /// Chainable setters, one per field: `VisibleOptions::default().with_…(…)` (the struct is
 /// `#[non_exhaustive]`, so code outside this crate cannot use struct-literal syntax).
 impl VisibleOptions {
-    /// These options with [`size`](Self::size) set to `value`.
-    #[must_use]
-    pub fn with_size(mut self, value: u32) -> Self {
-        self.size = value;
-        self
-    }
-
-    /// These options with [`voxel`](Self::voxel) set to `value`.
-    #[must_use]
-    pub fn with_voxel(mut self, value: f32) -> Self {
-        self.voxel = value;
-        self
+    w3d_core::setters! {
+        with_size(size: u32);
+        with_voxel(voxel: f32);
     }
 }
 

@@ -29,28 +29,15 @@ impl Default for FrameOptions {
 }
 
 impl FrameOptions {
-    /// The same options with another output size.
-    pub fn with_size(mut self, size: u32) -> Self {
-        self.size = size;
-        self
-    }
-
-    /// The same options with another object fraction.
-    pub fn with_fill(mut self, fill: f32) -> Self {
-        self.fill = fill;
-        self
-    }
-
-    /// The same options with another background colour.
-    pub fn with_background(mut self, background: [f32; 3]) -> Self {
-        self.background = background;
-        self
-    }
-
-    /// The same options with another threshold for alpha re-sharpening.
-    pub fn with_sharpen_above(mut self, sharpen_above: f32) -> Self {
-        self.sharpen_above = sharpen_above;
-        self
+    w3d_core::setters! {
+        /// The same options with another output size.
+        with_size(size: u32);
+        /// The same options with another object fraction.
+        with_fill(fill: f32);
+        /// The same options with another background colour.
+        with_background(background: [f32; 3]);
+        /// The same options with another threshold for alpha re-sharpening.
+        with_sharpen_above(sharpen_above: f32);
     }
 }
 

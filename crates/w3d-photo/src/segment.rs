@@ -51,46 +51,21 @@ impl Default for SegmentOptions {
 }
 
 impl SegmentOptions {
-    /// The same options with another analysis size.
-    pub fn with_work_size(mut self, work_size: u32) -> Self {
-        self.work_size = work_size;
-        self
-    }
-
-    /// The same options with another number of graph-cut rounds.
-    pub fn with_iterations(mut self, iterations: usize) -> Self {
-        self.iterations = iterations;
-        self
-    }
-
-    /// The same options with another boundary weight.
-    pub fn with_smoothness(mut self, smoothness: f32) -> Self {
-        self.smoothness = smoothness;
-        self
-    }
-
-    /// The same options with shadow handling on or off.
-    pub fn with_shadows(mut self, shadows: bool) -> Self {
-        self.shadows = shadows;
-        self
-    }
-
-    /// The same options with another number of mixture components.
-    pub fn with_components(mut self, components: usize) -> Self {
-        self.components = components;
-        self
-    }
-
-    /// The same options with another smallest kept piece.
-    pub fn with_keep_fraction(mut self, keep_fraction: f32) -> Self {
-        self.keep_fraction = keep_fraction;
-        self
-    }
-
-    /// The same options with another largest filled hole.
-    pub fn with_fill_holes(mut self, fill_holes: f32) -> Self {
-        self.fill_holes = fill_holes;
-        self
+    w3d_core::setters! {
+        /// The same options with another analysis size.
+        with_work_size(work_size: u32);
+        /// The same options with another number of graph-cut rounds.
+        with_iterations(iterations: usize);
+        /// The same options with another boundary weight.
+        with_smoothness(smoothness: f32);
+        /// The same options with shadow handling on or off.
+        with_shadows(shadows: bool);
+        /// The same options with another number of mixture components.
+        with_components(components: usize);
+        /// The same options with another smallest kept piece.
+        with_keep_fraction(keep_fraction: f32);
+        /// The same options with another largest filled hole.
+        with_fill_holes(fill_holes: f32);
     }
 
     fn validate(&self) -> Result<()> {

@@ -341,7 +341,8 @@ pub fn antialias_backward(
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::raster::{rasterize, to_dvec};
+    use crate::project::to_dvec;
+    use crate::raster::rasterize;
     use crate::tests_util::{Lcg, relative_error};
     use glam::{DVec3, Vec3};
     use w3d_core::{Camera, Projection};

@@ -113,8 +113,8 @@ pub fn interpolate_backward(
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use crate::project::Projector;
-    use crate::raster::{pixel_barycentrics, rasterize, rasterize_backward, to_dvec};
+    use crate::project::{Projector, to_dvec};
+    use crate::raster::{pixel_barycentrics, rasterize, rasterize_backward};
     use crate::tests_util::{Lcg, relative_error};
     use glam::{DVec3, Vec3};
     use w3d_core::{Camera, Projection};

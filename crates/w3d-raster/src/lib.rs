@@ -36,16 +36,28 @@
 //! # Ok::<(), w3d_core::Error>(())
 //! ```
 
-mod antialias;
-#[cfg(test)]
-mod gradient_checks;
-mod interpolate;
-mod project;
-mod raster;
-mod render;
+// Layers, bottom-up: each group imports only from itself and the groups above it.
+// Test helpers.
 #[cfg(test)]
 mod tests_util;
+
+// One camera's world → clip → pixel mapping.
+mod project;
+
+// Rasterisation: triangle ids, barycentrics and depth per pixel.
+mod raster;
+
+// Operations on a raster: attribute interpolation, silhouette anti-aliasing, texture sampling.
+mod antialias;
+mod interpolate;
 mod texture;
+
+// Render helpers over whole rigs.
+mod render;
+
+// Gradient checks across the operations.
+#[cfg(test)]
+mod gradient_checks;
 
 pub use antialias::{AntialiasGrad, Antialiased, EdgeTopology, NO_VERTEX, antialias, antialias_backward};
 pub use interpolate::{InterpolateGrad, interpolate, interpolate_backward};

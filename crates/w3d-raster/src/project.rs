@@ -70,7 +70,7 @@ impl Projector {
     }
 
     pub fn project_all(&self, positions: &[[f32; 3]]) -> Vec<ClipVertex> {
-        positions.iter().map(|&p| self.project(crate::raster::to_dvec(p))).collect()
+        positions.iter().map(|&p| self.project(to_dvec(p))).collect()
     }
 
     /// NDC `(X, Y)` of the centre of pixel `(column, row)`.
@@ -103,4 +103,9 @@ pub(crate) fn check_size(width: u32, height: u32) -> Result<()> {
         }
     }
     Ok(())
+}
+
+/// Converts f32 world positions to f64.
+pub(crate) fn to_dvec(p: [f32; 3]) -> DVec3 {
+    DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
 }

@@ -1,11 +1,10 @@
 //! `rasterize`: per-pixel front-most triangle, perspective-correct barycentrics and depth,
 //! and its backward pass (barycentrics and depth → vertex positions).
 
-use glam::DVec3;
 use rayon::prelude::*;
 use w3d_core::{Camera, Error, Result};
 
-use crate::project::{ClipVertex, NEAR_DEPTH, Projector, check_size};
+use crate::project::{ClipVertex, NEAR_DEPTH, Projector, check_size, to_dvec};
 
 /// Marks a pixel that no triangle covers in [`Raster::triangle`].
 pub const NO_TRIANGLE: u32 = u32::MAX;
@@ -544,15 +543,10 @@ fn accumulate_pixel(clip: &[ClipVertex], tri: [u32; 3], ndc: (f64, f64), g: [f64
     }
 }
 
-/// Converts f32 world positions to f64.
-pub(crate) fn to_dvec(p: [f32; 3]) -> DVec3 {
-    DVec3::new(p[0] as f64, p[1] as f64, p[2] as f64)
-}
-
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
-    use glam::Vec3;
+    use glam::{DVec3, Vec3};
     use w3d_core::Projection;
 
     fn front(projection: Projection) -> Camera {

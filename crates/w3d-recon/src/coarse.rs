@@ -134,111 +134,22 @@ impl Default for CoarseOptions {
 /// Chainable setters, one per field: `CoarseOptions::default().with_…(…)` (the struct is
 /// `#[non_exhaustive]`, so code outside this crate cannot use struct-literal syntax).
 impl CoarseOptions {
-    /// These options with [`steps`](Self::steps) set to `value`.
-    #[must_use]
-    pub fn with_steps(mut self, value: usize) -> Self {
-        self.steps = value;
-        self
-    }
-
-    /// These options with [`lr`](Self::lr) set to `value`.
-    #[must_use]
-    pub fn with_lr(mut self, value: f32) -> Self {
-        self.lr = value;
-        self
-    }
-
-    /// These options with [`lr_decay`](Self::lr_decay) set to `value`.
-    #[must_use]
-    pub fn with_lr_decay(mut self, value: f32) -> Self {
-        self.lr_decay = value;
-        self
-    }
-
-    /// These options with [`edge_len_lims`](Self::edge_len_lims) set to `value`.
-    #[must_use]
-    pub fn with_edge_len_lims(mut self, value: (f32, f32)) -> Self {
-        self.edge_len_lims = value;
-        self
-    }
-
-    /// These options with [`min_edge_pixels`](Self::min_edge_pixels) set to `value`.
-    #[must_use]
-    pub fn with_min_edge_pixels(mut self, value: f32) -> Self {
-        self.min_edge_pixels = value;
-        self
-    }
-
-    /// These options with [`laplacian_weight`](Self::laplacian_weight) set to `value`.
-    #[must_use]
-    pub fn with_laplacian_weight(mut self, value: f32) -> Self {
-        self.laplacian_weight = value;
-        self
-    }
-
-    /// These options with [`normal_weight`](Self::normal_weight) set to `value`.
-    #[must_use]
-    pub fn with_normal_weight(mut self, value: f32) -> Self {
-        self.normal_weight = value;
-        self
-    }
-
-    /// These options with [`mask_weight`](Self::mask_weight) set to `value`.
-    #[must_use]
-    pub fn with_mask_weight(mut self, value: f32) -> Self {
-        self.mask_weight = value;
-        self
-    }
-
-    /// These options with [`grazing_epsilon`](Self::grazing_epsilon) set to `value`.
-    #[must_use]
-    pub fn with_grazing_epsilon(mut self, value: f32) -> Self {
-        self.grazing_epsilon = value;
-        self
-    }
-
-    /// These options with [`seed`](Self::seed) set to `value`.
-    #[must_use]
-    pub fn with_seed(mut self, value: u64) -> Self {
-        self.seed = value;
-        self
-    }
-
-    /// These options with [`remesh_repairs`](Self::remesh_repairs) set to `value`.
-    #[must_use]
-    pub fn with_remesh_repairs(mut self, value: bool) -> Self {
-        self.remesh_repairs = value;
-        self
-    }
-
-    /// These options with [`normal_mask_erosion`](Self::normal_mask_erosion) set to `value`.
-    #[must_use]
-    pub fn with_normal_mask_erosion(mut self, value: u32) -> Self {
-        self.normal_mask_erosion = value;
-        self
-    }
-
-    /// These options with [`curvature_tolerance`](Self::curvature_tolerance) set to `value`.
-    #[must_use]
-    pub fn with_curvature_tolerance(mut self, value: Option<f32>) -> Self {
-        self.curvature_tolerance = value;
-        self
-    }
-
-    /// These options with [`curvature_from_views`](Self::curvature_from_views) set to
-    /// `value`.
-    #[must_use]
-    pub fn with_curvature_from_views(mut self, value: bool) -> Self {
-        self.curvature_from_views = value;
-        self
-    }
-
-    /// These options with [`start_at_mesh_edge_lengths`](Self::start_at_mesh_edge_lengths)
-    /// set to `value`.
-    #[must_use]
-    pub fn with_start_at_mesh_edge_lengths(mut self, value: bool) -> Self {
-        self.start_at_mesh_edge_lengths = value;
-        self
+    w3d_core::setters! {
+        with_steps(steps: usize);
+        with_lr(lr: f32);
+        with_lr_decay(lr_decay: f32);
+        with_edge_len_lims(edge_len_lims: (f32, f32));
+        with_min_edge_pixels(min_edge_pixels: f32);
+        with_laplacian_weight(laplacian_weight: f32);
+        with_normal_weight(normal_weight: f32);
+        with_mask_weight(mask_weight: f32);
+        with_grazing_epsilon(grazing_epsilon: f32);
+        with_seed(seed: u64);
+        with_remesh_repairs(remesh_repairs: bool);
+        with_normal_mask_erosion(normal_mask_erosion: u32);
+        with_curvature_tolerance(curvature_tolerance: Option<f32>);
+        with_curvature_from_views(curvature_from_views: bool);
+        with_start_at_mesh_edge_lengths(start_at_mesh_edge_lengths: bool);
     }
 }
 

@@ -48,32 +48,11 @@ impl Default for IntegrateOptions {
 /// Chainable setters, one per field: `IntegrateOptions::default().with_…(…)` (the struct is
 /// `#[non_exhaustive]`, so code outside this crate cannot use struct-literal syntax).
 impl IntegrateOptions {
-    /// These options with [`boundary_weight`](Self::boundary_weight) set to `value`.
-    #[must_use]
-    pub fn with_boundary_weight(mut self, value: f64) -> Self {
-        self.boundary_weight = value;
-        self
-    }
-
-    /// These options with [`mask_threshold`](Self::mask_threshold) set to `value`.
-    #[must_use]
-    pub fn with_mask_threshold(mut self, value: f32) -> Self {
-        self.mask_threshold = value;
-        self
-    }
-
-    /// These options with [`max_iterations`](Self::max_iterations) set to `value`.
-    #[must_use]
-    pub fn with_max_iterations(mut self, value: usize) -> Self {
-        self.max_iterations = value;
-        self
-    }
-
-    /// These options with [`tolerance`](Self::tolerance) set to `value`.
-    #[must_use]
-    pub fn with_tolerance(mut self, value: f64) -> Self {
-        self.tolerance = value;
-        self
+    w3d_core::setters! {
+        with_boundary_weight(boundary_weight: f64);
+        with_mask_threshold(mask_threshold: f32);
+        with_max_iterations(max_iterations: usize);
+        with_tolerance(tolerance: f64);
     }
 }
 

@@ -115,40 +115,14 @@ impl Default for ReconOptions {
 /// Chainable setters, one per field: `ReconOptions::default().with_…(…)` (the struct is
 /// `#[non_exhaustive]`, so code outside this crate cannot use struct-literal syntax).
 impl ReconOptions {
-    /// These options with [`init`](Self::init) set to `value`.
-    #[must_use]
-    pub fn with_init(mut self, value: InitOptions) -> Self {
-        self.init = value;
-        self
-    }
-
-    /// These options with [`coarse`](Self::coarse) set to `value`.
-    #[must_use]
-    pub fn with_coarse(mut self, value: CoarseOptions) -> Self {
-        self.coarse = value;
-        self
-    }
-
-    /// These options with [`untangle_rounds`](Self::untangle_rounds) set to `value`.
-    #[must_use]
-    pub fn with_untangle_rounds(mut self, value: usize) -> Self {
-        self.untangle_rounds = value;
-        self
-    }
-
-    /// These options with [`polish_steps`](Self::polish_steps) set to `value`.
-    #[must_use]
-    pub fn with_polish_steps(mut self, value: usize) -> Self {
-        self.polish_steps = value;
-        self
-    }
-
-    /// These options with [`starts`](Self::starts) set to `value` (at least 1; [`reconstruct`]
-    /// refuses 0).
-    #[must_use]
-    pub fn with_starts(mut self, value: usize) -> Self {
-        self.starts = value;
-        self
+    w3d_core::setters! {
+        with_init(init: InitOptions);
+        with_coarse(coarse: CoarseOptions);
+        with_untangle_rounds(untangle_rounds: usize);
+        with_polish_steps(polish_steps: usize);
+        /// These options with [`starts`](Self::starts) set to `value` (at least 1; [`reconstruct`]
+        /// refuses 0).
+        with_starts(starts: usize);
     }
 
     /// These options with the coarse stage's step count ([`CoarseOptions::steps`]) set to

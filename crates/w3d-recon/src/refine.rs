@@ -145,96 +145,20 @@ impl Default for RefineOptions {
 
 /// Chainable setters, one per field (the struct is `#[non_exhaustive]`).
 impl RefineOptions {
-    /// These options with [`steps`](Self::steps) set to `value`.
-    #[must_use]
-    pub fn with_steps(mut self, value: usize) -> Self {
-        self.steps = value;
-        self
-    }
-
-    /// These options with [`lr`](Self::lr) set to `value`.
-    #[must_use]
-    pub fn with_lr(mut self, value: f32) -> Self {
-        self.lr = value;
-        self
-    }
-
-    /// These options with [`lr_decay`](Self::lr_decay) set to `value`.
-    #[must_use]
-    pub fn with_lr_decay(mut self, value: f32) -> Self {
-        self.lr_decay = value;
-        self
-    }
-
-    /// These options with [`edge_len_lims`](Self::edge_len_lims) set to `value`.
-    #[must_use]
-    pub fn with_edge_len_lims(mut self, value: (f32, f32)) -> Self {
-        self.edge_len_lims = value;
-        self
-    }
-
-    /// These options with [`curvature_from_views`](Self::curvature_from_views) set to `value`.
-    #[must_use]
-    pub fn with_curvature_from_views(mut self, value: bool) -> Self {
-        self.curvature_from_views = value;
-        self
-    }
-
-    /// These options with [`curvature_tolerance`](Self::curvature_tolerance) set to `value`.
-    #[must_use]
-    pub fn with_curvature_tolerance(mut self, value: Option<f32>) -> Self {
-        self.curvature_tolerance = value;
-        self
-    }
-
-    /// These options with [`laplacian_weight`](Self::laplacian_weight) set to `value`.
-    #[must_use]
-    pub fn with_laplacian_weight(mut self, value: f32) -> Self {
-        self.laplacian_weight = value;
-        self
-    }
-
-    /// These options with [`normal_mask_erosion`](Self::normal_mask_erosion) set to `value`.
-    #[must_use]
-    pub fn with_normal_mask_erosion(mut self, value: u32) -> Self {
-        self.normal_mask_erosion = value;
-        self
-    }
-
-    /// These options with [`untangle_rounds`](Self::untangle_rounds) set to `value`.
-    #[must_use]
-    pub fn with_untangle_rounds(mut self, value: usize) -> Self {
-        self.untangle_rounds = value;
-        self
-    }
-
-    /// These options with [`polish_steps`](Self::polish_steps) set to `value`.
-    #[must_use]
-    pub fn with_polish_steps(mut self, value: usize) -> Self {
-        self.polish_steps = value;
-        self
-    }
-
-    /// These options with [`simplify_tolerance`](Self::simplify_tolerance) set to `value`.
-    #[must_use]
-    pub fn with_simplify_tolerance(mut self, value: Option<f32>) -> Self {
-        self.simplify_tolerance = value;
-        self
-    }
-
-    /// These options with [`keep_input_unless_better`](Self::keep_input_unless_better) set
-    /// to `value`.
-    #[must_use]
-    pub fn with_keep_input_unless_better(mut self, value: bool) -> Self {
-        self.keep_input_unless_better = value;
-        self
-    }
-
-    /// These options with [`seed`](Self::seed) set to `value`.
-    #[must_use]
-    pub fn with_seed(mut self, value: u64) -> Self {
-        self.seed = value;
-        self
+    w3d_core::setters! {
+        with_steps(steps: usize);
+        with_lr(lr: f32);
+        with_lr_decay(lr_decay: f32);
+        with_edge_len_lims(edge_len_lims: (f32, f32));
+        with_curvature_from_views(curvature_from_views: bool);
+        with_curvature_tolerance(curvature_tolerance: Option<f32>);
+        with_laplacian_weight(laplacian_weight: f32);
+        with_normal_mask_erosion(normal_mask_erosion: u32);
+        with_untangle_rounds(untangle_rounds: usize);
+        with_polish_steps(polish_steps: usize);
+        with_simplify_tolerance(simplify_tolerance: Option<f32>);
+        with_keep_input_unless_better(keep_input_unless_better: bool);
+        with_seed(seed: u64);
     }
 
     /// The coarse-stage options the fit runs with.

@@ -61,53 +61,14 @@ impl Default for RemeshParams {
 /// Chainable setters, one per field: `RemeshParams::default().with_…(…)` (the struct is
 /// `#[non_exhaustive]`, so code outside this crate cannot use struct-literal syntax).
 impl RemeshParams {
-    /// These options with [`area_ratio`](Self::area_ratio) set to `value`.
-    #[must_use]
-    pub fn with_area_ratio(mut self, value: f32) -> Self {
-        self.area_ratio = value;
-        self
-    }
-
-    /// These options with [`shortest_probability`](Self::shortest_probability) set to `value`.
-    #[must_use]
-    pub fn with_shortest_probability(mut self, value: f32) -> Self {
-        self.shortest_probability = value;
-        self
-    }
-
-    /// These options with [`max_vertices`](Self::max_vertices) set to `value`.
-    #[must_use]
-    pub fn with_max_vertices(mut self, value: usize) -> Self {
-        self.max_vertices = value;
-        self
-    }
-
-    /// These options with [`flip`](Self::flip) set to `value`.
-    #[must_use]
-    pub fn with_flip(mut self, value: bool) -> Self {
-        self.flip = value;
-        self
-    }
-
-    /// These options with [`remove_valence3`](Self::remove_valence3) set to `value`.
-    #[must_use]
-    pub fn with_remove_valence3(mut self, value: bool) -> Self {
-        self.remove_valence3 = value;
-        self
-    }
-
-    /// These options with [`fold_relaxation_rounds`](Self::fold_relaxation_rounds) set to `value`.
-    #[must_use]
-    pub fn with_fold_relaxation_rounds(mut self, value: u32) -> Self {
-        self.fold_relaxation_rounds = value;
-        self
-    }
-
-    /// These options with [`collapse_rank_rounds`](Self::collapse_rank_rounds) set to `value`.
-    #[must_use]
-    pub fn with_collapse_rank_rounds(mut self, value: u32) -> Self {
-        self.collapse_rank_rounds = value;
-        self
+    w3d_core::setters! {
+        with_area_ratio(area_ratio: f32);
+        with_shortest_probability(shortest_probability: f32);
+        with_max_vertices(max_vertices: usize);
+        with_flip(flip: bool);
+        with_remove_valence3(remove_valence3: bool);
+        with_fold_relaxation_rounds(fold_relaxation_rounds: u32);
+        with_collapse_rank_rounds(collapse_rank_rounds: u32);
     }
 }
 

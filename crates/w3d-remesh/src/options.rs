@@ -127,158 +127,29 @@ impl Default for RemeshOptions {
 /// Chainable setters, one per field: `RemeshOptions::default().with_…(…)` (the struct is
 /// `#[non_exhaustive]`, so code outside this crate cannot use struct-literal syntax).
 impl RemeshOptions {
-    /// These options with [`lr`](Self::lr) set to `value`.
-    #[must_use]
-    pub fn with_lr(mut self, value: f32) -> Self {
-        self.lr = value;
-        self
-    }
-
-    /// These options with [`betas`](Self::betas) set to `value`.
-    #[must_use]
-    pub fn with_betas(mut self, value: [f32; 3]) -> Self {
-        self.betas = value;
-        self
-    }
-
-    /// These options with [`gammas`](Self::gammas) set to `value`.
-    #[must_use]
-    pub fn with_gammas(mut self, value: [f32; 3]) -> Self {
-        self.gammas = value;
-        self
-    }
-
-    /// These options with [`nu_ref`](Self::nu_ref) set to `value`.
-    #[must_use]
-    pub fn with_nu_ref(mut self, value: f32) -> Self {
-        self.nu_ref = value;
-        self
-    }
-
-    /// These options with [`edge_len_lims`](Self::edge_len_lims) set to `value`.
-    #[must_use]
-    pub fn with_edge_len_lims(mut self, value: (f32, f32)) -> Self {
-        self.edge_len_lims = value;
-        self
-    }
-
-    /// These options with [`edge_len_tol`](Self::edge_len_tol) set to `value`.
-    #[must_use]
-    pub fn with_edge_len_tol(mut self, value: f32) -> Self {
-        self.edge_len_tol = value;
-        self
-    }
-
-    /// These options with [`gain`](Self::gain) set to `value`.
-    #[must_use]
-    pub fn with_gain(mut self, value: f32) -> Self {
-        self.gain = value;
-        self
-    }
-
-    /// These options with [`laplacian_weight`](Self::laplacian_weight) set to `value`.
-    #[must_use]
-    pub fn with_laplacian_weight(mut self, value: f32) -> Self {
-        self.laplacian_weight = value;
-        self
-    }
-
-    /// These options with [`ramp`](Self::ramp) set to `value`.
-    #[must_use]
-    pub fn with_ramp(mut self, value: f32) -> Self {
-        self.ramp = value;
-        self
-    }
-
-    /// These options with [`grad_lim`](Self::grad_lim) set to `value`.
-    #[must_use]
-    pub fn with_grad_lim(mut self, value: f32) -> Self {
-        self.grad_lim = value;
-        self
-    }
-
-    /// These options with [`remesh_interval`](Self::remesh_interval) set to `value`.
-    #[must_use]
-    pub fn with_remesh_interval(mut self, value: u32) -> Self {
-        self.remesh_interval = value;
-        self
-    }
-
-    /// These options with [`local_edge_len`](Self::local_edge_len) set to `value`.
-    #[must_use]
-    pub fn with_local_edge_len(mut self, value: bool) -> Self {
-        self.local_edge_len = value;
-        self
-    }
-
-    /// These options with [`flip`](Self::flip) set to `value`.
-    #[must_use]
-    pub fn with_flip(mut self, value: bool) -> Self {
-        self.flip = value;
-        self
-    }
-
-    /// These options with [`max_vertices`](Self::max_vertices) set to `value`.
-    #[must_use]
-    pub fn with_max_vertices(mut self, value: usize) -> Self {
-        self.max_vertices = value;
-        self
-    }
-
-    /// These options with [`area_ratio`](Self::area_ratio) set to `value`.
-    #[must_use]
-    pub fn with_area_ratio(mut self, value: f32) -> Self {
-        self.area_ratio = value;
-        self
-    }
-
-    /// These options with [`shortest_probability`](Self::shortest_probability) set to `value`.
-    #[must_use]
-    pub fn with_shortest_probability(mut self, value: f32) -> Self {
-        self.shortest_probability = value;
-        self
-    }
-
-    /// These options with [`seed`](Self::seed) set to `value`.
-    #[must_use]
-    pub fn with_seed(mut self, value: u64) -> Self {
-        self.seed = value;
-        self
-    }
-
-    /// These options with [`remove_valence3`](Self::remove_valence3) set to `value`.
-    #[must_use]
-    pub fn with_remove_valence3(mut self, value: bool) -> Self {
-        self.remove_valence3 = value;
-        self
-    }
-
-    /// These options with [`fold_relaxation_rounds`](Self::fold_relaxation_rounds) set to `value`.
-    #[must_use]
-    pub fn with_fold_relaxation_rounds(mut self, value: u32) -> Self {
-        self.fold_relaxation_rounds = value;
-        self
-    }
-
-    /// These options with [`collapse_rank_rounds`](Self::collapse_rank_rounds) set to `value`.
-    #[must_use]
-    pub fn with_collapse_rank_rounds(mut self, value: u32) -> Self {
-        self.collapse_rank_rounds = value;
-        self
-    }
-
-    /// These options with [`edge_floor_passes`](Self::edge_floor_passes) set to `value`.
-    #[must_use]
-    pub fn with_edge_floor_passes(mut self, value: u32) -> Self {
-        self.edge_floor_passes = value;
-        self
-    }
-
-    /// These options with [`curvature_tolerance`](Self::curvature_tolerance) set to `value`.
-    #[must_use]
-    pub fn with_curvature_tolerance(mut self, value: Option<f32>) -> Self {
-        self.curvature_tolerance = value;
-        self
+    w3d_core::setters! {
+        with_lr(lr: f32);
+        with_betas(betas: [f32; 3]);
+        with_gammas(gammas: [f32; 3]);
+        with_nu_ref(nu_ref: f32);
+        with_edge_len_lims(edge_len_lims: (f32, f32));
+        with_edge_len_tol(edge_len_tol: f32);
+        with_gain(gain: f32);
+        with_laplacian_weight(laplacian_weight: f32);
+        with_ramp(ramp: f32);
+        with_grad_lim(grad_lim: f32);
+        with_remesh_interval(remesh_interval: u32);
+        with_local_edge_len(local_edge_len: bool);
+        with_flip(flip: bool);
+        with_max_vertices(max_vertices: usize);
+        with_area_ratio(area_ratio: f32);
+        with_shortest_probability(shortest_probability: f32);
+        with_seed(seed: u64);
+        with_remove_valence3(remove_valence3: bool);
+        with_fold_relaxation_rounds(fold_relaxation_rounds: u32);
+        with_collapse_rank_rounds(collapse_rank_rounds: u32);
+        with_edge_floor_passes(edge_floor_passes: u32);
+        with_curvature_tolerance(curvature_tolerance: Option<f32>);
     }
 }
 

@@ -40,32 +40,11 @@ impl Default for SimplifyOptions {
 /// Chainable setters, one per field: `SimplifyOptions::default().with_…(…)` (the struct is
 /// `#[non_exhaustive]`).
 impl SimplifyOptions {
-    /// These options with [`tolerance`](Self::tolerance) set to `value`.
-    #[must_use]
-    pub fn with_tolerance(mut self, value: f32) -> Self {
-        self.tolerance = value;
-        self
-    }
-
-    /// These options with [`min_triangles`](Self::min_triangles) set to `value`.
-    #[must_use]
-    pub fn with_min_triangles(mut self, value: usize) -> Self {
-        self.min_triangles = value;
-        self
-    }
-
-    /// These options with [`max_normal_turn_deg`](Self::max_normal_turn_deg) set to `value`.
-    #[must_use]
-    pub fn with_max_normal_turn_deg(mut self, value: f32) -> Self {
-        self.max_normal_turn_deg = value;
-        self
-    }
-
-    /// These options with [`min_quality`](Self::min_quality) set to `value`.
-    #[must_use]
-    pub fn with_min_quality(mut self, value: f32) -> Self {
-        self.min_quality = value;
-        self
+    w3d_core::setters! {
+        with_tolerance(tolerance: f32);
+        with_min_triangles(min_triangles: usize);
+        with_max_normal_turn_deg(max_normal_turn_deg: f32);
+        with_min_quality(min_quality: f32);
     }
 
     fn check(&self) -> Result<()> {

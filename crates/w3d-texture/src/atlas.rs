@@ -39,25 +39,10 @@ impl Default for AtlasOptions {
 /// Chainable setters, one per field: `AtlasOptions::default().with_…(…)` (the struct is
 /// `#[non_exhaustive]`, so code outside this crate cannot use struct-literal syntax).
 impl AtlasOptions {
-    /// These options with [`size`](Self::size) set to `value`.
-    #[must_use]
-    pub fn with_size(mut self, value: u32) -> Self {
-        self.size = value;
-        self
-    }
-
-    /// These options with [`padding`](Self::padding) set to `value`.
-    #[must_use]
-    pub fn with_padding(mut self, value: u32) -> Self {
-        self.padding = value;
-        self
-    }
-
-    /// These options with [`max_chart_angle_deg`](Self::max_chart_angle_deg) set to `value`.
-    #[must_use]
-    pub fn with_max_chart_angle_deg(mut self, value: f32) -> Self {
-        self.max_chart_angle_deg = value;
-        self
+    w3d_core::setters! {
+        with_size(size: u32);
+        with_padding(padding: u32);
+        with_max_chart_angle_deg(max_chart_angle_deg: f32);
     }
 }
 

@@ -36,25 +36,10 @@ impl Default for RefineTextureOptions {
 
 /// Chainable setters, one per field (the struct is `#[non_exhaustive]`).
 impl RefineTextureOptions {
-    /// These options with [`view_weights`](Self::view_weights) set to `value`.
-    #[must_use]
-    pub fn with_view_weights(mut self, value: Vec<f32>) -> Self {
-        self.view_weights = value;
-        self
-    }
-
-    /// These options with [`replace_weight`](Self::replace_weight) set to `value`.
-    #[must_use]
-    pub fn with_replace_weight(mut self, value: f32) -> Self {
-        self.replace_weight = value;
-        self
-    }
-
-    /// These options with [`dilation`](Self::dilation) set to `value`.
-    #[must_use]
-    pub fn with_dilation(mut self, value: u32) -> Self {
-        self.dilation = value;
-        self
+    w3d_core::setters! {
+        with_view_weights(view_weights: Vec<f32>);
+        with_replace_weight(replace_weight: f32);
+        with_dilation(dilation: u32);
     }
 }
 

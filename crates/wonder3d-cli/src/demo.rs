@@ -5,8 +5,9 @@
 
 use std::path::PathBuf;
 
+use wonder3d::Result;
 use wonder3d::demo::{DemoOptions, run_demo};
-use wonder3d::{Result, check_out_folder};
+use wonder3d::outputs::check_out_folder;
 
 use crate::args::PresetArg;
 use crate::progress;

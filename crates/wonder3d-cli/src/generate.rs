@@ -137,7 +137,7 @@ mod with_model {
 
     /// Runs `wonder3d generate`.
     pub fn run(args: &GenerateArgs) -> Result<()> {
-        wonder3d::check_out_dir(&args.out)?;
+        wonder3d::outputs::check_out_dir(&args.out)?;
         // Read and prepare the image before loading the weights: a refused photo fails fast.
         let prepared = wonder3d::prepare_image(&args.image, &args.model.sampling.prepare_options()?)?;
         if !args.quiet {

@@ -17,17 +17,26 @@
 //! wonder3d train --stage 2 --data train --init model --out run2 --steps 1000  # train the multi-view UNet
 //! ```
 
+// Layers, bottom-up: each group imports only from itself and the groups above it.
+// Shared argument parsers and progress bars.
 mod args;
+mod progress;
+
+// Commands that others build on, each on the one before: prepare (photo → RGBA), generate
+// (the model's options and loading), refine (enhancers and the refinement loop).
+mod prepare;
+//
+mod generate;
+//
+mod refine;
+
+// The other commands.
 mod batch;
 mod dataset;
 mod demo;
 mod eval;
-mod generate;
 mod info;
-mod prepare;
-mod progress;
 mod reconstruct;
-mod refine;
 mod render;
 mod run;
 mod texture;

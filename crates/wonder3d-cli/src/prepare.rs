@@ -5,8 +5,9 @@
 
 use std::path::{Path, PathBuf};
 
+use wonder3d::outputs::check_png_output;
 use wonder3d::photo::FrameOptions;
-use wonder3d::{Error, PrepareOptions, Prepared, Result, check_png_output, prepare_image};
+use wonder3d::{Error, PrepareOptions, Prepared, Result, prepare_image};
 
 /// Arguments of `wonder3d prepare`.
 #[derive(clap::Args)]

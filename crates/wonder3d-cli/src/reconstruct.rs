@@ -4,7 +4,8 @@
 use std::path::PathBuf;
 
 use wonder3d::core::io::write_atomic;
-use wonder3d::{Error, Pipeline, Result, ViewSet, check_outputs};
+use wonder3d::outputs::check_outputs;
+use wonder3d::{Error, Pipeline, Result, ViewSet};
 
 use crate::args::PresetArg;
 use crate::progress;

@@ -5,10 +5,11 @@
 use std::path::PathBuf;
 
 use wonder3d::core::io::write_atomic;
+use wonder3d::outputs::check_outputs;
 use wonder3d::refine::{
     Enhancer, IdentityEnhancer, OracleEnhancer, RefineOptions, RefineProgress, RefineStep, Refined, refine,
 };
-use wonder3d::{Error, Mesh, Result, TextureOptions, ViewSet, check_outputs, load_mesh, save_mesh};
+use wonder3d::{Error, Mesh, Result, TextureOptions, ViewSet, load_mesh, save_mesh};
 
 use crate::progress;
 
@@ -228,7 +229,7 @@ impl RefineAfterArgs {
 /// Fails naming the first missing file of an enhancer directory.
 #[cfg(feature = "diffusion")]
 fn check_enhancer_dir(dir: &std::path::Path) -> Result<()> {
-    wonder3d::diffusion::enhancer::check_enhancer_dir(dir)
+    wonder3d::diffusion::pipelines::enhancer::check_enhancer_dir(dir)
 }
 
 /// The diffusion enhancer needs the model (this binary has none).

@@ -2,7 +2,8 @@
 
 use std::path::PathBuf;
 
-use wonder3d::{Result, check_out_dir, load_mesh};
+use wonder3d::outputs::check_out_dir;
+use wonder3d::{Result, load_mesh};
 
 use crate::args::RigArg;
 

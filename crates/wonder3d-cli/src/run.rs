@@ -49,7 +49,8 @@ pub struct RunArgs {
 #[cfg(feature = "diffusion")]
 pub fn run(args: &RunArgs) -> Result<()> {
     use wonder3d::core::io::write_atomic;
-    use wonder3d::{Error, Pipeline, check_outputs};
+    use wonder3d::outputs::check_outputs;
+    use wonder3d::{Error, Pipeline};
 
     use crate::{generate, progress};
 

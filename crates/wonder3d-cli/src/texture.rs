@@ -2,8 +2,9 @@
 
 use std::path::PathBuf;
 
+use wonder3d::outputs::check_mesh_output;
 use wonder3d::texture::{bake_with_progress, fuse_vertex_colours};
-use wonder3d::{Progress, Result, Stage, TextureOptions, ViewSet, check_mesh_output, load_mesh, save_mesh};
+use wonder3d::{Progress, Result, Stage, TextureOptions, ViewSet, load_mesh, save_mesh};
 
 use crate::progress;
 

@@ -118,12 +118,12 @@ pub fn run(args: &TrainArgs) -> Result<()> {
     use indicatif::{ProgressBar, ProgressStyle};
     use wonder3d::Error;
     use wonder3d::diffusion::MultiViewPipeline;
+    use wonder3d::diffusion::train::data::TrainingSet;
     use wonder3d::diffusion::train::{LrSchedule, RunEvent, RunOptions, Stage, TrainOptions, run_training};
-    use wonder3d::diffusion::training_set::TrainingSet;
 
     let stage = Stage::from_number(args.stage)?;
     // Everything cheap is checked before the model loads: the set's index, the output folder.
-    use wonder3d::diffusion::training_set::Background;
+    use wonder3d::diffusion::train::data::Background;
     let background = match args.background {
         BackgroundArg::Dataset => None,
         BackgroundArg::White => Some(Background::White),

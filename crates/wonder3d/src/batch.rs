@@ -48,9 +48,12 @@ use std::time::{Duration, Instant, SystemTime};
 
 use serde::{Deserialize, Serialize};
 use w3d_core::io::{fnv1a64, write_atomic, write_dir_atomic};
+use w3d_core::{Error, Result, ViewSet};
+use w3d_recon::Preset;
 
-use crate::pipeline::check_out_folder;
-use crate::{Error, Pipeline, Preset, Progress, Report, Result, Seconds, ViewSet};
+use crate::outputs::check_out_folder;
+use crate::pipeline::{Pipeline, Report, Seconds};
+use crate::progress::Progress;
 
 /// The largest manifest read (bytes): far above a million items, small enough that a wrong
 /// file (a video, `/dev/zero`) is refused instead of read.
@@ -431,7 +434,7 @@ pub struct BatchOptions {
     /// Texture the meshes (else `mesh.glb` is the closed untextured mesh).
     pub texture: bool,
     /// Fits tried on the generated views of image items, the best kept (default
-    /// [`crate::GENERATED_VIEW_STARTS`]; [`Pipeline::with_generated_view_starts`]). View
+    /// [`crate::pipeline::GENERATED_VIEW_STARTS`]; [`Pipeline::with_generated_view_starts`]). View
     /// items get their preset's one.
     pub generated_view_starts: usize,
 }
@@ -450,62 +453,29 @@ impl BatchOptions {
             preset: Preset::Default,
             texture_size: w3d_texture::TextureOptions::default().size,
             texture: true,
-            generated_view_starts: crate::GENERATED_VIEW_STARTS,
+            generated_view_starts: crate::pipeline::GENERATED_VIEW_STARTS,
         }
     }
 
-    /// Textures the meshes or not.
-    pub fn with_texture(mut self, texture: bool) -> Self {
-        self.texture = texture;
-        self
-    }
-
-    /// Runs only `shard`.
-    pub fn with_shard(mut self, shard: Shard) -> Self {
-        self.shard = shard;
-        self
-    }
-
-    /// Resumes an earlier run (see [`BatchOptions::resume`]).
-    pub fn with_resume(mut self, resume: bool) -> Self {
-        self.resume = resume;
-        self
-    }
-
-    /// Items at once in this process.
-    pub fn with_jobs(mut self, jobs: usize) -> Self {
-        self.jobs = jobs;
-        self
-    }
-
-    /// Wall-clock limit per item.
-    pub fn with_timeout(mut self, timeout: Option<Duration>) -> Self {
-        self.timeout = timeout;
-        self
-    }
-
-    /// Keeps generated views.
-    pub fn with_keep_views(mut self, keep: bool) -> Self {
-        self.keep_views = keep;
-        self
-    }
-
-    /// Default reconstruction preset.
-    pub fn with_preset(mut self, preset: Preset) -> Self {
-        self.preset = preset;
-        self
-    }
-
-    /// Default texture size.
-    pub fn with_texture_size(mut self, size: u32) -> Self {
-        self.texture_size = size;
-        self
-    }
-
-    /// Fits tried on the generated views of image items.
-    pub fn with_generated_view_starts(mut self, starts: usize) -> Self {
-        self.generated_view_starts = starts;
-        self
+    w3d_core::setters! {
+        /// Textures the meshes or not.
+        with_texture(texture: bool);
+        /// Runs only `shard`.
+        with_shard(shard: Shard);
+        /// Resumes an earlier run (see [`BatchOptions::resume`]).
+        with_resume(resume: bool);
+        /// Items at once in this process.
+        with_jobs(jobs: usize);
+        /// Wall-clock limit per item.
+        with_timeout(timeout: Option<Duration>);
+        /// Keeps generated views.
+        with_keep_views(keep_views: bool);
+        /// Default reconstruction preset.
+        with_preset(preset: Preset);
+        /// Default texture size.
+        with_texture_size(texture_size: u32);
+        /// Fits tried on the generated views of image items.
+        with_generated_view_starts(generated_view_starts: usize);
     }
 
     /// The report of this shard's items, one JSON object per line.
@@ -637,7 +607,7 @@ struct TimedOut;
 pub struct Batch {
     options: BatchOptions,
     #[cfg(feature = "diffusion")]
-    model: Option<Mutex<crate::Generator>>,
+    model: Option<Mutex<crate::generate::Generator>>,
 }
 
 impl std::fmt::Debug for Batch {
@@ -658,7 +628,7 @@ impl Batch {
 
     /// Uses `model` for image items (loaded once for the whole batch).
     #[cfg(feature = "diffusion")]
-    pub fn with_model(mut self, model: crate::Generator) -> Batch {
+    pub fn with_model(mut self, model: crate::generate::Generator) -> Batch {
         self.model = Some(Mutex::new(model));
         self
     }
@@ -902,9 +872,9 @@ impl Batch {
         pipeline: &Pipeline,
         item: &Item,
         progress: &mut dyn FnMut(Progress),
-    ) -> Result<(crate::Output, Option<crate::Generated>)> {
+    ) -> Result<(crate::pipeline::Output, Option<crate::generate::Generated>)> {
         let model = self.model.as_ref().ok_or_else(|| Error::invalid("model", "a model for image items"))?;
-        let image = crate::Image::read(&item.input)?;
+        let image = w3d_core::Image::read(&item.input)?;
         let start = Instant::now();
         let (generated, sample) = {
             // Generation uses every core; one item generates at a time while others reconstruct.
@@ -934,13 +904,13 @@ impl Batch {
         _: &Pipeline,
         _: &Item,
         _: &mut dyn FnMut(Progress),
-    ) -> Result<(crate::Output, Option<std::convert::Infallible>)> {
+    ) -> Result<(crate::pipeline::Output, Option<std::convert::Infallible>)> {
         Err(Error::invalid("model", "a build with the diffusion model (feature `diffusion`) for image items"))
     }
 }
 
 #[cfg(feature = "diffusion")]
-fn save_views(generated: &crate::Generated, dir: &Path) -> Result<()> {
+fn save_views(generated: &crate::generate::Generated, dir: &Path) -> Result<()> {
     generated.save(dir)
 }
 

@@ -17,8 +17,8 @@
 //! **Per sample** (everything drawn from [`sample_draw`], a pure function of the dataset
 //! seed, the object's id stem and the sample index):
 //! - the object is rotated by a yaw about +y uniform in ±60° after a pitch about +x uniform
-//!   in −15…30° (Wonder3D's render-time rotation, z ±60° and x −15…30° in Blender's z-up,
-//!   `reference/wonder3d.md` §4.1), then normalised as `wonder3d render` does (bbox centred,
+//!   in −15…30° (Wonder3D's render-time rotation, z ±60° and x −15…30° in Blender's z-up;
+//!   `docs/training.md`, "Per sample"), then normalised as `wonder3d render` does (bbox centred,
 //!   longest side 1), then scaled so its front-view silhouette spans [`INPUT_FRACTION`] of
 //!   the image — the framing inference gives a photo — within [`MAX_VIEW_FRACTION`] in every
 //!   view ([`framing_scale`]);
@@ -53,12 +53,11 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 use w3d_core::io::write_dir_atomic;
+use w3d_core::{Error, Mesh, Result, ViewRig, ViewSet};
 
-use crate::pipeline::{Progress, Stage};
-use crate::{Error, Mesh, Result, ViewRig, ViewSet};
+use crate::progress::{Progress, Stage};
 
-/// The `format` value of `dataset.json`.
-pub const FORMAT: &str = "wonder3d-rs dataset";
+pub use w3d_core::dataset::FORMAT;
 
 /// The `version` of the layout written here.
 pub const VERSION: u32 = 2;
@@ -111,28 +110,7 @@ impl CameraKind {
     }
 }
 
-/// The background a training loader composites a sample over (input and targets alike).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Background {
-    /// 1.0 in every channel (`"white"`, what inference uses).
-    White,
-    /// 0.0 (`"black"`).
-    Black,
-    /// 0.5 (`"grey"`).
-    Grey,
-}
-
-impl Background {
-    /// The value of every channel of this background, in the encoded (file) range `[0, 1]`.
-    pub fn value(self) -> f32 {
-        match self {
-            Background::White => 1.0,
-            Background::Black => 0.0,
-            Background::Grey => 0.5,
-        }
-    }
-}
+pub use w3d_core::dataset::Background;
 
 /// Where a sample's colour views come from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -225,28 +203,15 @@ impl Default for DatasetOptions {
 }
 
 impl DatasetOptions {
-    /// With `samples` samples per object.
-    pub fn with_samples(mut self, samples: usize) -> Self {
-        self.samples = samples;
-        self
-    }
-
-    /// With `size × size` views.
-    pub fn with_size(mut self, size: u32) -> Self {
-        self.size = size;
-        self
-    }
-
-    /// With another seed.
-    pub fn with_seed(mut self, seed: u64) -> Self {
-        self.seed = seed;
-        self
-    }
-
-    /// With the camera type fixed (`Some`) or drawn per sample (`None`).
-    pub fn with_camera(mut self, camera: Option<CameraKind>) -> Self {
-        self.camera = camera;
-        self
+    w3d_core::setters! {
+        /// With `samples` samples per object.
+        with_samples(samples: usize);
+        /// With `size × size` views.
+        with_size(size: u32);
+        /// With another seed.
+        with_seed(seed: u64);
+        /// With the camera type fixed (`Some`) or drawn per sample (`None`).
+        with_camera(camera: Option<CameraKind>);
     }
 
     /// Checks the ranges: samples 1 to [`MAX_SAMPLES`], size [`MIN_SIZE`] to [`MAX_SIZE`].
@@ -429,7 +394,7 @@ impl DatasetObject {
                 "a file name with letters or digits (it names the samples)",
             ));
         }
-        let mut mesh = crate::load_mesh(path)?;
+        let mut mesh = w3d_core::load_mesh(path)?;
         let flipped_outward = mesh.orient_outward();
         mesh.normalize_unit_cube();
         // The renderer computes normals from the geometry; stored ones would go stale under
@@ -622,7 +587,7 @@ impl Dataset {
             pitch_deg: sample.pitch_deg,
         };
         let mesh = object.posed(&draw)?;
-        let views = crate::raster::render_oracle_views(&mesh, &sample.camera.rig(), self.options.size)
+        let views = w3d_raster::render_oracle_views(&mesh, &sample.camera.rig(), self.options.size)
             .map_err(|e| e.in_file(&object.source))?;
         let (rig, mut images) = views.into_parts();
         for image in &mut images {
@@ -663,7 +628,7 @@ impl Dataset {
 pub fn check_dataset_dir(dir: impl AsRef<Path>) -> Result<()> {
     let dir = dir.as_ref();
     let field = || format!("output folder {}", dir.display());
-    if !crate::core::io::replaceable_folder(dir)? {
+    if !w3d_core::io::replaceable_folder(dir)? {
         return Ok(());
     }
     let entries: Vec<std::fs::DirEntry> = std::fs::read_dir(dir)

@@ -12,12 +12,13 @@ use std::path::Path;
 use std::time::Instant;
 
 use serde::Serialize;
+use w3d_core::{Error, Image, Mesh, Result, ViewRig, ViewSet};
 use w3d_eval::{EvalOptions, MeshMetrics, composite_over_white, evaluate, psnr, ssim};
 use w3d_recon::Preset;
 
-use crate::pipeline::{Output, Pipeline, Progress, Report, Stage};
+use crate::pipeline::{Output, Pipeline, Report};
+use crate::progress::{Progress, Stage};
 use crate::sheet::{SheetRow, contact_sheet, normal_picture};
-use crate::{Error, Image, Mesh, Result, ViewRig};
 
 /// The bundled demo object: spot as a self-contained GLB (mesh, uvs and texture), turned to
 /// face the `front` camera (+z); see `assets/SOURCES.md` in this crate.
@@ -42,7 +43,7 @@ pub struct DemoOptions {
     /// Side of the baked texture in texels (default 1024).
     pub texture_size: u32,
     /// Fits tried on the generated views of [`run_demo_from_image`], the best kept (default
-    /// [`crate::GENERATED_VIEW_STARTS`]; [`crate::Pipeline::with_generated_view_starts`]).
+    /// [`crate::pipeline::GENERATED_VIEW_STARTS`]; [`crate::Pipeline::with_generated_view_starts`]).
     pub generated_view_starts: usize,
 }
 
@@ -52,34 +53,21 @@ impl Default for DemoOptions {
             preset: Preset::Default,
             view_size: 256,
             texture_size: 1024,
-            generated_view_starts: crate::GENERATED_VIEW_STARTS,
+            generated_view_starts: crate::pipeline::GENERATED_VIEW_STARTS,
         }
     }
 }
 
 impl DemoOptions {
-    /// With another preset.
-    pub fn with_preset(mut self, preset: Preset) -> Self {
-        self.preset = preset;
-        self
-    }
-
-    /// With another view size.
-    pub fn with_view_size(mut self, size: u32) -> Self {
-        self.view_size = size;
-        self
-    }
-
-    /// With another texture size.
-    pub fn with_texture_size(mut self, size: u32) -> Self {
-        self.texture_size = size;
-        self
-    }
-
-    /// With another number of fits on the generated views.
-    pub fn with_generated_view_starts(mut self, starts: usize) -> Self {
-        self.generated_view_starts = starts;
-        self
+    w3d_core::setters! {
+        /// With another preset.
+        with_preset(preset: Preset);
+        /// With another view size.
+        with_view_size(view_size: u32);
+        /// With another texture size.
+        with_texture_size(texture_size: u32);
+        /// With another number of fits on the generated views.
+        with_generated_view_starts(generated_view_starts: usize);
     }
 }
 
@@ -220,7 +208,7 @@ type Scores = (Vec<f64>, Vec<f64>, [Vec<Image>; 4]);
 /// Texture PSNR and SSIM of each view's render of the result (`results`) against the input
 /// view it was made from (`inputs`, same rig and size), both composited over white, with the
 /// contact sheet's pictures of both.
-fn score_renders(inputs: &crate::ViewSet, results: &crate::ViewSet) -> Result<Scores> {
+fn score_renders(inputs: &ViewSet, results: &ViewSet) -> Result<Scores> {
     let (mut psnrs, mut ssims) = (Vec::new(), Vec::new());
     let mut pictures: [Vec<Image>; 4] = Default::default();
     for (input, result) in inputs.views().iter().zip(results.views()) {
@@ -265,8 +253,8 @@ pub const PHOTO_SAMPLE: usize = 0;
 /// assert_eq!((options.guidance, options.draws), (1.0, 4));
 /// ```
 #[cfg(feature = "diffusion")]
-pub fn small_model_sampling() -> crate::SampleOptions {
-    crate::SampleOptions { guidance: 1.0, draws: 4, ..Default::default() }
+pub fn small_model_sampling() -> w3d_diffusion::SampleOptions {
+    w3d_diffusion::SampleOptions { guidance: 1.0, draws: 4, ..Default::default() }
 }
 
 /// Spot as the training set shows it in sample [`PHOTO_SAMPLE`]: the bundled spot turned
@@ -306,7 +294,7 @@ fn spot_photo(spot: &Mesh, size: u32) -> Result<Image> {
 /// the true views and renders of the result.
 #[cfg(feature = "diffusion")]
 pub fn run_demo_from_image(
-    generator: crate::Generator,
+    generator: crate::generate::Generator,
     options: &DemoOptions,
     progress: &mut dyn FnMut(Progress),
 ) -> Result<Demo> {

@@ -4,12 +4,12 @@
 
 use std::path::Path;
 
+use w3d_core::{Image, Result, ViewSet};
 use w3d_diffusion::{Device, MultiViewPipeline, SampleOptions, WeightStorage, prepare_input};
 use w3d_photo::PrepareOptions;
 
-use crate::pipeline::{Progress, Stage};
+use crate::progress::{Progress, Stage};
 use crate::sheet::{SheetRow, contact_sheet, normal_picture};
-use crate::{Image, Result, ViewSet};
 
 /// The views a [`Generator`] made of one image.
 #[derive(Debug, Clone)]

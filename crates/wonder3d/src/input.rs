@@ -4,9 +4,8 @@
 
 use std::path::Path;
 
+use w3d_core::{Image, Result};
 use w3d_photo::{PrepareOptions, Prepared};
-
-use crate::{Error, Image, Result, check_parent};
 
 /// Reads an image file (PNG, JPEG or WebP, recognised from its bytes; EXIF orientation
 /// applied) and prepares it for the model with [`w3d_photo::prepare`]: its own alpha when it
@@ -17,18 +16,4 @@ pub fn prepare_image(path: impl AsRef<Path>, options: &PrepareOptions) -> Result
     let path = path.as_ref();
     let image = Image::read(path)?;
     w3d_photo::prepare(&image, options).map_err(|e| e.in_file(path))
-}
-
-/// Fails unless `path` can take a PNG: a `.png` name in an existing folder. Call it before
-/// the work.
-pub fn check_png_output(path: impl AsRef<Path>) -> Result<()> {
-    let path = path.as_ref();
-    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-    if ext.as_deref() != Some("png") {
-        return Err(Error::invalid(
-            format!("output {}", path.display()),
-            "a .png file name (RGBA images are written as PNG)",
-        ));
-    }
-    check_parent(path)
 }

@@ -42,23 +42,31 @@
 //! # Ok::<(), wonder3d::Error>(())
 //! ```
 
+// Layers, bottom-up: each group imports only from itself and the groups above it.
+// Building blocks: input images, output-path checks, progress events, contact sheets.
+mod input;
+pub mod outputs;
+mod progress;
+pub mod sheet;
+
+// The multi-view diffusion model.
+#[cfg(feature = "diffusion")]
+mod generate;
+
+// The pipeline: views or an image → textured mesh.
+mod pipeline;
+
+// Jobs built on the pipeline: batches, training sets, the demo, refinement.
 pub mod batch;
 pub mod dataset;
 pub mod demo;
-#[cfg(feature = "diffusion")]
-mod generate;
-mod input;
-mod pipeline;
 pub mod refine;
-pub mod sheet;
 
 #[cfg(feature = "diffusion")]
 pub use generate::{Generated, Generator};
-pub use input::{check_png_output, prepare_image};
-pub use pipeline::{
-    GENERATED_VIEW_STARTS, GenerationReport, Output, Pipeline, Progress, Report, Seconds, Stage, TextureStage,
-    check_mesh_output, check_out_dir, check_out_folder, check_outputs, check_parent, mesh_output_files,
-};
+pub use input::prepare_image;
+pub use pipeline::{GENERATED_VIEW_STARTS, GenerationReport, Output, Pipeline, Report, Seconds};
+pub use progress::{Progress, Stage, TextureStage};
 /// Meshes, cameras, view rigs, images, view sets and file IO (the `w3d-core` crate).
 pub use w3d_core as core;
 pub use w3d_core::{

@@ -1,104 +1,19 @@
 //! [`Pipeline`]: views (or an image, with a model) → closed mesh → textured mesh, with one
 //! staged progress callback and one serialisable [`Report`].
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::time::Instant;
 
 use serde::Serialize;
+use w3d_core::{Error, Image, Mesh, Result, ViewSet};
+#[cfg(feature = "diffusion")]
+use w3d_diffusion::SampleOptions;
 use w3d_recon::{Preset, ReconOptions, ReconReport};
-use w3d_texture::{BakeReport, BakeStage, TextureOptions};
+use w3d_texture::{BakeReport, TextureOptions};
 
-use crate::{Error, Image, Mesh, Result, ViewSet};
-
-/// A stage of [`Pipeline`], as reported to the progress callback.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-#[non_exhaustive]
-pub enum Stage {
-    /// Rendering oracle views of a known mesh (the demo, benchmarks).
-    Render,
-    /// Preparing the input image and computing the model's conditions (CLIP, VAE).
-    Condition,
-    /// Denoising: one unit per sampling step.
-    Denoise,
-    /// Decoding the latents into the 6 normal and 6 colour views.
-    Decode,
-    /// Mesh extraction; the inner stage says which part (init, coarse, untangle, polish).
-    Reconstruct(w3d_recon::Stage),
-    /// Texturing; the inner stage says which part (fusion, atlas, baking, dilation).
-    Texture(TextureStage),
-    /// Scoring a result against a ground truth (the demo).
-    Evaluate,
-}
-
-/// The parts of texturing, in order (the stages of `w3d_texture::bake_with_progress`).
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "snake_case")]
-#[non_exhaustive]
-pub enum TextureStage {
-    /// Rasterising the views and fusing per-vertex colours.
-    FusingVertexColours,
-    /// Building the UV atlas.
-    BuildingAtlas,
-    /// Projecting the views into the texels.
-    Baking,
-    /// Dilating across chart borders.
-    Dilating,
-}
-
-impl From<BakeStage> for TextureStage {
-    fn from(stage: BakeStage) -> Self {
-        match stage {
-            BakeStage::FusingVertexColours => TextureStage::FusingVertexColours,
-            BakeStage::BuildingAtlas => TextureStage::BuildingAtlas,
-            BakeStage::Baking => TextureStage::Baking,
-            BakeStage::Dilating => TextureStage::Dilating,
-        }
-    }
-}
-
-impl Stage {
-    /// A short lower-case name for progress bars and logs (`denoise`, `coarse`, `atlas` …).
-    pub fn name(self) -> &'static str {
-        match self {
-            Stage::Render => "render",
-            Stage::Evaluate => "evaluate",
-            Stage::Condition => "condition",
-            Stage::Denoise => "denoise",
-            Stage::Decode => "decode",
-            Stage::Reconstruct(w3d_recon::Stage::Init) => "init",
-            Stage::Reconstruct(w3d_recon::Stage::Coarse) => "coarse",
-            Stage::Reconstruct(w3d_recon::Stage::Untangle) => "untangle",
-            Stage::Reconstruct(w3d_recon::Stage::Polish) => "polish",
-            Stage::Texture(TextureStage::FusingVertexColours) => "fusion",
-            Stage::Texture(TextureStage::BuildingAtlas) => "atlas",
-            Stage::Texture(TextureStage::Baking) => "bake",
-            Stage::Texture(TextureStage::Dilating) => "dilate",
-        }
-    }
-}
-
-/// A progress event: `done` of `total` units of `stage` (steps where the stage has steps,
-/// else 0/1 then 1/1), with the current loss where the stage optimises one.
-#[derive(Debug, Clone, Copy, PartialEq)]
-#[non_exhaustive]
-pub struct Progress {
-    /// The stage running.
-    pub stage: Stage,
-    /// Units done.
-    pub done: usize,
-    /// Units in the stage.
-    pub total: usize,
-    /// The current loss, when the stage has one.
-    pub loss: Option<f32>,
-}
-
-impl Progress {
-    /// An event of `stage`.
-    pub fn new(stage: Stage, done: usize, total: usize, loss: Option<f32>) -> Self {
-        Progress { stage, done, total, loss }
-    }
-}
+#[cfg(feature = "diffusion")]
+use crate::generate::{Generated, Generator};
+use crate::progress::{Progress, Stage, TextureStage};
 
 /// Wall-clock seconds of each part of a [`Pipeline`] run.
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize)]
@@ -182,108 +97,6 @@ impl Output {
     }
 }
 
-/// The files that saving a mesh to `path` writes: `path` itself, and for `.obj` also
-/// `<stem>.mtl` and `<stem>.png` beside it (written when the mesh has a texture).
-pub fn mesh_output_files(path: impl AsRef<Path>) -> Vec<PathBuf> {
-    let path = path.as_ref();
-    let mut files = Vec::new();
-    if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("obj")) {
-        let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-        files.push(path.with_file_name(format!("{stem}.png")));
-        files.push(path.with_file_name(format!("{stem}.mtl")));
-    }
-    files.push(path.to_path_buf());
-    files
-}
-
-/// Fails unless `path` can take a mesh: a supported extension (`.glb`, `.obj`, `.ply`;
-/// `.gltf` is read-only and refused) and, for every file the save writes
-/// ([`mesh_output_files`]), an existing parent folder and no folder of that name. Call it
-/// before long work so a typo fails in a millisecond, not after the reconstruction.
-pub fn check_mesh_output(path: impl AsRef<Path>) -> Result<()> {
-    let path = path.as_ref();
-    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
-    if !matches!(ext.as_deref(), Some("glb" | "obj" | "ply")) {
-        return Err(Error::invalid(
-            format!("output {}", path.display()),
-            "a .glb, .obj or .ply file name (the mesh formats this library writes)",
-        ));
-    }
-    mesh_output_files(path).iter().try_for_each(|f| check_parent(f))
-}
-
-/// Fails unless the folder that would hold `path` exists (an empty parent is the working
-/// directory) and `path` itself is not a folder.
-pub fn check_parent(path: &Path) -> Result<()> {
-    if path.is_dir() {
-        return Err(Error::invalid(format!("output {}", path.display()), "a file name, but it is a folder"));
-    }
-    match path.parent() {
-        Some(parent) if !parent.as_os_str().is_empty() && !parent.is_dir() => Err(Error::invalid(
-            format!("output {}", path.display()),
-            format!("an existing folder {}; create it first", parent.display()),
-        )),
-        _ => Ok(()),
-    }
-}
-
-/// Fails unless `dir` can receive a view-set folder (`wonder3d render`, `generate`, `run
-/// --views`): see [`ViewSet::check_output_dir`] (a new folder in an existing one, or an
-/// earlier view-set folder, which the new set replaces as a whole).
-pub fn check_out_dir(dir: impl AsRef<Path>) -> Result<()> {
-    ViewSet::check_output_dir(dir)
-}
-
-/// Fails unless `dir` can hold named output files (created if missing, like the demo's
-/// folder): not a file, and its parent an existing folder.
-pub fn check_out_folder(dir: impl AsRef<Path>) -> Result<()> {
-    let dir = dir.as_ref();
-    if dir.exists() && !dir.is_dir() {
-        return Err(Error::invalid(format!("output folder {}", dir.display()), "a folder, but it is a file"));
-    }
-    match dir.parent() {
-        Some(p) if !p.as_os_str().is_empty() && !p.is_dir() => Err(Error::invalid(
-            format!("output folder {}", dir.display()),
-            format!("a folder inside an existing one; create {} first", p.display()),
-        )),
-        _ => Ok(()),
-    }
-}
-
-/// Checks every output of a command before any work: the mesh ([`check_mesh_output`]),
-/// the report file ([`check_parent`]) and the view-set folder ([`check_out_dir`]) when
-/// given, and that no two of them are the same file and that neither file lies inside the
-/// view-set folder (which is replaced as a whole).
-pub fn check_outputs(mesh: &Path, report: Option<&Path>, views: Option<&Path>) -> Result<()> {
-    check_mesh_output(mesh)?;
-    if let Some(report) = report {
-        check_parent(report)?;
-    }
-    if let Some(views) = views {
-        check_out_dir(views)?;
-    }
-    let absolute = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
-    let mut files: Vec<PathBuf> = mesh_output_files(mesh);
-    files.extend(report.map(Path::to_path_buf));
-    for (i, a) in files.iter().enumerate() {
-        if let Some(b) = files[..i].iter().find(|b| absolute(b) == absolute(a)) {
-            return Err(Error::invalid(
-                format!("output {}", a.display()),
-                format!("a file of its own, but {} is written there too", b.display()),
-            ));
-        }
-        if let Some(views) = views
-            && absolute(a).parent() == Some(absolute(views).as_path())
-        {
-            return Err(Error::invalid(
-                format!("output {}", a.display()),
-                format!("a file outside the view folder {} (which is replaced as a whole)", views.display()),
-            ));
-        }
-    }
-    Ok(())
-}
-
 /// Fits [`Pipeline::from_image`] tries on the views it generates, keeping the one that fits
 /// them best ([`ReconOptions::starts`]). Generated views disagree with each other, and a
 /// single fit to them then lands anywhere in a wide spread: on the small model's views of
@@ -321,7 +134,7 @@ pub struct Pipeline {
     generated_starts: usize,
     texture: Option<TextureOptions>,
     #[cfg(feature = "diffusion")]
-    model: Option<crate::generate::Generator>,
+    model: Option<Generator>,
 }
 
 impl Default for Pipeline {
@@ -488,13 +301,13 @@ impl Pipeline {
 #[cfg(feature = "diffusion")]
 impl Pipeline {
     /// Uses `model` for [`Pipeline::from_image`].
-    pub fn with_model(mut self, model: crate::generate::Generator) -> Self {
+    pub fn with_model(mut self, model: Generator) -> Self {
         self.model = Some(model);
         self
     }
 
     /// The loaded model, if any.
-    pub fn model(&self) -> Option<&crate::generate::Generator> {
+    pub fn model(&self) -> Option<&Generator> {
         self.model.as_ref()
     }
 
@@ -515,8 +328,8 @@ impl Pipeline {
     /// the settings).
     pub(crate) fn extract_generated(
         &self,
-        generated: crate::Generated,
-        options: &crate::SampleOptions,
+        generated: Generated,
+        options: &SampleOptions,
         seconds: f64,
         progress: &mut dyn FnMut(Progress),
     ) -> Result<Output> {
@@ -532,48 +345,12 @@ impl Pipeline {
     }
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "diffusion"))]
 mod tests {
     use super::*;
 
-    #[test]
-    fn output_folders_may_exist_but_not_be_files() {
-        let dir = tempfile::tempdir().unwrap();
-        // An existing folder (a second demo run into the same folder) is fine, a new one too.
-        check_out_folder(dir.path()).unwrap();
-        check_out_folder(dir.path().join("new")).unwrap();
-        let file = dir.path().join("file");
-        std::fs::write(&file, "x").unwrap();
-        assert!(check_out_folder(&file).unwrap_err().to_string().contains("it is a file"));
-        assert!(check_out_folder(dir.path().join("a/b")).unwrap_err().to_string().contains("create"));
-    }
-
-    #[test]
-    fn every_output_is_checked_together() {
-        let dir = tempfile::tempdir().unwrap();
-        let p = |name: &str| dir.path().join(name);
-        check_outputs(&p("m.glb"), Some(&p("r.json")), Some(&p("views"))).unwrap();
-        check_outputs(&p("m.obj"), None, None).unwrap();
-        let err = |mesh: &str, report: Option<&str>, views: Option<&str>| {
-            let (report, views) = (report.map(p), views.map(p));
-            check_outputs(&p(mesh), report.as_deref(), views.as_deref()).unwrap_err().to_string()
-        };
-        assert!(err("m.stl", None, None).contains(".glb, .obj or .ply"));
-        assert!(err("m.glb", Some("m.glb"), None).contains("written there too"));
-        assert!(err("m.obj", Some("m.mtl"), None).contains("written there too"));
-        std::fs::create_dir(p("views")).unwrap();
-        assert!(err("views/m.glb", None, Some("views")).contains("replaced as a whole"));
-        assert!(err("m.glb", Some("no/r.json"), None).contains("create it first"));
-        // An OBJ whose texture name is taken by a folder is refused before any work.
-        std::fs::create_dir(p("t.png")).unwrap();
-        assert!(err("t.obj", None, None).contains("t.png"));
-        assert_eq!(mesh_output_files(p("t.obj")), vec![p("t.png"), p("t.mtl"), p("t.obj")]);
-        assert_eq!(mesh_output_files(p("t.glb")), vec![p("t.glb")]);
-    }
-
     /// Generated views get the generated-view count of fits, given views the options' own;
     /// the preset keeps its name when only the count changes.
-    #[cfg(feature = "diffusion")]
     #[test]
     fn generated_views_get_several_fits() {
         use w3d_core::ViewRig;
@@ -585,8 +362,8 @@ mod tests {
         let pipeline = Pipeline::new().with_recon_options(fast).without_texture();
         assert_eq!(pipeline.generated_view_starts(), GENERATED_VIEW_STARTS);
         let pipeline = pipeline.with_generated_view_starts(2);
-        let generated = crate::Generated::new(views.clone(), input);
-        let options = crate::SampleOptions::default();
+        let generated = Generated::new(views.clone(), input);
+        let options = SampleOptions::default();
         let output = pipeline.extract_generated(generated, &options, 0.0, &mut |_| {}).unwrap();
         assert_eq!(output.report.reconstruction.start_losses.len(), 2);
         let given = pipeline.from_views(&views, &mut |_| {}).unwrap();

@@ -110,9 +110,9 @@ impl Enhancer for OracleEnhancer {
 }
 
 /// The diffusion enhancer: Wonder3D++'s ControlNet + IP-Adapter img2img call on Stable
-/// Diffusion 1.5 ([`w3d_diffusion::enhancer`]), colour and normal grids of the four views in
+/// Diffusion 1.5 ([`w3d_diffusion::pipelines::enhancer`]), colour and normal grids of the four views in
 /// one joint call, with the authors' settings per iteration
-/// ([`EnhancerOptions::for_iteration`](w3d_diffusion::enhancer::EnhancerOptions::for_iteration)).
+/// ([`EnhancerOptions::for_iteration`](w3d_diffusion::pipelines::enhancer::EnhancerOptions::for_iteration)).
 ///
 /// As in the authors' code, the init and control images are the views the mesh was
 /// reconstructed from ([`EnhanceRequest::views`], brought to the refinement size with PIL's
@@ -124,7 +124,7 @@ impl Enhancer for OracleEnhancer {
 #[cfg(feature = "diffusion")]
 #[derive(Debug)]
 pub struct DiffusionEnhancer {
-    pipeline: w3d_diffusion::enhancer::EnhancerPipeline,
+    pipeline: w3d_diffusion::pipelines::enhancer::EnhancerPipeline,
     device: w3d_diffusion::Device,
     input_image: Option<w3d_core::Image>,
     init_from_renders: bool,
@@ -141,7 +141,7 @@ impl DiffusionEnhancer {
 
     /// Loads an enhancer directory onto `device`, weights in their stored precision.
     pub fn load_on(dir: impl AsRef<std::path::Path>, device: w3d_diffusion::Device) -> Result<Self> {
-        let pipeline = w3d_diffusion::enhancer::EnhancerPipeline::from_dir_with(
+        let pipeline = w3d_diffusion::pipelines::enhancer::EnhancerPipeline::from_dir_with(
             dir,
             &device,
             w3d_diffusion::WeightStorage::AsStored,
@@ -150,7 +150,7 @@ impl DiffusionEnhancer {
     }
 
     /// An enhancer over loaded models.
-    pub fn new(pipeline: w3d_diffusion::enhancer::EnhancerPipeline, device: w3d_diffusion::Device) -> Self {
+    pub fn new(pipeline: w3d_diffusion::pipelines::enhancer::EnhancerPipeline, device: w3d_diffusion::Device) -> Self {
         DiffusionEnhancer { pipeline, device, input_image: None, init_from_renders: false, upstream_cfg_bugs: false }
     }
 
@@ -161,20 +161,13 @@ impl DiffusionEnhancer {
         self
     }
 
-    /// This enhancer with the init and control images taken from the renders of the current
-    /// mesh (`true`) or from the original views (`false`, the authors' code and the default).
-    #[must_use]
-    pub fn with_init_from_renders(mut self, value: bool) -> Self {
-        self.init_from_renders = value;
-        self
-    }
-
-    /// This enhancer reproducing the batch-order bugs of the authors' pipeline (for
-    /// comparisons with their outputs; off by default).
-    #[must_use]
-    pub fn with_upstream_cfg_bugs(mut self, value: bool) -> Self {
-        self.upstream_cfg_bugs = value;
-        self
+    w3d_core::setters! {
+        /// This enhancer with the init and control images taken from the renders of the current
+        /// mesh (`true`) or from the original views (`false`, the authors' code and the default).
+        with_init_from_renders(init_from_renders: bool);
+        /// This enhancer reproducing the batch-order bugs of the authors' pipeline (for
+        /// comparisons with their outputs; off by default).
+        with_upstream_cfg_bugs(upstream_cfg_bugs: bool);
     }
 }
 
@@ -206,8 +199,8 @@ fn enhancer_tiles(views: &ViewSet, rig: &ViewRig, size: u32) -> Result<(Vec<w3d_
         let (w, h) = (images.normal.width(), images.normal.height());
         let colour = w3d_core::Image::new(w, h, 3, over_white(colour.data(), |v| v))?;
         let normal = w3d_core::Image::new(w, h, 3, over_white(images.normal.data(), |v| 0.5 * v + 0.5))?;
-        colours.push(w3d_diffusion::enhancer::resize_bicubic(&colour, size, size)?);
-        normals.push(w3d_diffusion::enhancer::resize_bicubic(&normal, size, size)?);
+        colours.push(w3d_diffusion::pipelines::enhancer::resize_bicubic(&colour, size, size)?);
+        normals.push(w3d_diffusion::pipelines::enhancer::resize_bicubic(&normal, size, size)?);
     }
     Ok((colours, normals))
 }
@@ -219,7 +212,9 @@ impl Enhancer for DiffusionEnhancer {
     }
 
     fn enhance(&self, request: &EnhanceRequest<'_>) -> Result<ViewSet> {
-        use w3d_diffusion::enhancer::{EnhancerOptions, images_to_tensor, make_grid, split_grid, tensor_to_images};
+        use w3d_diffusion::pipelines::enhancer::{
+            EnhancerOptions, images_to_tensor, make_grid, split_grid, tensor_to_images,
+        };
         let rig = request.renders.rig().clone();
         let size = request.renders.width();
         let source = if self.init_from_renders { request.renders } else { request.views };
@@ -238,7 +233,11 @@ impl Enhancer for DiffusionEnhancer {
             (Some(c), Some(n)) => (c, n),
             _ => return Err(Error::invalid("enhanced grids", "a colour and a normal grid")),
         };
-        w3d_diffusion::multiview::views_from_images(rig, &split_grid(&normal_grid)?, &split_grid(&colour_grid)?)
+        w3d_diffusion::pipelines::multiview::views_from_images(
+            rig,
+            &split_grid(&normal_grid)?,
+            &split_grid(&colour_grid)?,
+        )
     }
 }
 
@@ -273,39 +272,12 @@ impl Default for RefineOptions {
 
 /// Chainable setters, one per field (the struct is `#[non_exhaustive]`).
 impl RefineOptions {
-    /// These options with [`iterations`](Self::iterations) set to `value`.
-    #[must_use]
-    pub fn with_iterations(mut self, value: usize) -> Self {
-        self.iterations = value;
-        self
-    }
-
-    /// These options with [`size`](Self::size) set to `value`.
-    #[must_use]
-    pub fn with_size(mut self, value: u32) -> Self {
-        self.size = value;
-        self
-    }
-
-    /// These options with [`mesh`](Self::mesh) set to `value`.
-    #[must_use]
-    pub fn with_mesh(mut self, value: w3d_recon::RefineOptions) -> Self {
-        self.mesh = value;
-        self
-    }
-
-    /// These options with [`texture`](Self::texture) set to `value`.
-    #[must_use]
-    pub fn with_texture(mut self, value: TextureOptions) -> Self {
-        self.texture = value;
-        self
-    }
-
-    /// These options with [`texture_refinement`](Self::texture_refinement) set to `value`.
-    #[must_use]
-    pub fn with_texture_refinement(mut self, value: RefineTextureOptions) -> Self {
-        self.texture_refinement = value;
-        self
+    w3d_core::setters! {
+        with_iterations(iterations: usize);
+        with_size(size: u32);
+        with_mesh(mesh: w3d_recon::RefineOptions);
+        with_texture(texture: TextureOptions);
+        with_texture_refinement(texture_refinement: RefineTextureOptions);
     }
 }
 

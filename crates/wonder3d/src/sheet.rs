@@ -4,7 +4,7 @@
 //! Labels use a built-in 5 × 7 pixel font (lower-case letters, digits and a little
 //! punctuation), scaled by an integer factor, so no font file or font crate is needed.
 
-use crate::{Error, Image, Result};
+use w3d_core::{Error, Image, Result};
 
 /// One row of a contact sheet: a label drawn at its left and images of one common size.
 #[derive(Debug, Clone)]

@@ -6,9 +6,10 @@ use std::path::Path;
 use glam::{Mat3, Mat4, Vec3};
 use serde_json::json;
 
+use crate::error::{Error, Result};
+use crate::files::write_atomic;
 use crate::image::{Image, linear_to_srgb, srgb_to_linear};
-use crate::io::write_atomic;
-use crate::{Error, Mesh, Result};
+use crate::mesh::Mesh;
 
 /// Reads every triangle primitive of the default scene (or of all scenes' nodes if no
 /// default is set) with node transforms applied, concatenated into one mesh. Normals,
@@ -16,7 +17,7 @@ use crate::{Error, Mesh, Result};
 /// the first primitive's base-colour texture are kept when every primitive has them.
 pub fn read_gltf(path: impl AsRef<Path>) -> Result<Mesh> {
     let path = path.as_ref();
-    let bytes = crate::io::read_input(path)?;
+    let bytes = crate::files::read_input(path)?;
     let is_glb = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("glb"));
     import(path, &bytes, is_glb, Some(path.parent().unwrap_or(Path::new("."))))
 }

@@ -4,21 +4,20 @@
 //! goes to a temporary file beside the destination and is renamed into place, so a
 //! failed write never leaves a half-written file.
 
-mod exr_limits;
 mod gltf_io;
 mod obj;
 mod ply;
 
-use std::fs::File;
-use std::io::{BufWriter, Write};
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
-pub use exr_limits::{MAX_EXR_PIXELS, check_exr_size};
+pub use crate::exr_limits::{MAX_EXR_PIXELS, check_exr_size};
+pub use crate::files::{fnv1a64, replaceable_folder, write_atomic, write_atomic_all, write_dir_atomic};
 pub use gltf_io::{read_glb_bytes, read_gltf, write_glb};
 pub use obj::{read_obj, write_obj};
 pub use ply::{read_ply, write_ply};
 
-use crate::{Error, Mesh, Result};
+use crate::error::{Error, Result};
+use crate::mesh::Mesh;
 
 /// Reads a mesh from an `.obj`, `.ply`, `.glb` or `.gltf` file.
 pub fn load_mesh(path: impl AsRef<Path>) -> Result<Mesh> {
@@ -46,151 +45,4 @@ pub fn save_mesh(path: impl AsRef<Path>, mesh: &Mesh) -> Result<()> {
 
 fn extension(path: &Path) -> String {
     path.extension().and_then(|e| e.to_str()).unwrap_or("").to_ascii_lowercase()
-}
-
-/// Reads a whole input file after checking that it is a regular file: a folder, a FIFO or
-/// a device such as `/dev/zero` (which never ends) is refused by name instead of read.
-pub(crate) fn read_input(path: &Path) -> Result<Vec<u8>> {
-    let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
-    if !meta.is_file() {
-        let what = if meta.is_dir() { "a folder" } else { "not a regular file (a device or pipe?)" };
-        return Err(Error::format(path, "file", format!("a regular file, but it is {what}")));
-    }
-    std::fs::read(path).map_err(|e| Error::io(path, e))
-}
-
-/// A temporary path beside `path` (same directory, so a rename is atomic).
-fn temp_path(path: &Path) -> PathBuf {
-    let name = path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
-    path.with_file_name(format!(".{name}.{}.tmp", std::process::id()))
-}
-
-/// Writes several files as one: first checks that no destination is a folder, then writes
-/// every file to a temporary name beside it, and only when all are written renames them
-/// into place, in order (put the file that refers to the others last). On any error the
-/// temporaries are removed and no destination has been touched.
-pub fn write_atomic_all(files: &[(&Path, &[u8])]) -> Result<()> {
-    for (path, _) in files {
-        if path.is_dir() {
-            return Err(Error::invalid(format!("output {}", path.display()), "a file name, but it is a folder"));
-        }
-    }
-    let temps: Vec<PathBuf> = files.iter().map(|(path, _)| temp_path(path)).collect();
-    let written = files.iter().zip(&temps).try_for_each(|((path, bytes), tmp)| {
-        let mut file = File::create(tmp).map_err(|e| Error::io(path, e))?;
-        file.write_all(bytes).and_then(|()| file.flush()).map_err(|e| Error::io(path, e))
-    });
-    if let Err(e) = written {
-        for tmp in &temps {
-            let _ = std::fs::remove_file(tmp);
-        }
-        return Err(e);
-    }
-    for (i, ((path, _), tmp)) in files.iter().zip(&temps).enumerate() {
-        if let Err(e) = std::fs::rename(tmp, path) {
-            for tmp in &temps[i..] {
-                let _ = std::fs::remove_file(tmp);
-            }
-            return Err(Error::io(path, e));
-        }
-    }
-    Ok(())
-}
-
-/// The checks every output folder that a command replaces as a whole shares, made before any
-/// work: `dir` names a folder (not `.`, `..` or a root), its parent exists, and it is not a
-/// file. Returns whether `dir` exists (then the caller checks what it holds before it may be
-/// replaced).
-pub fn replaceable_folder(dir: &Path) -> Result<bool> {
-    let field = || format!("output folder {}", dir.display());
-    if dir.file_name().is_none() {
-        return Err(Error::invalid(field(), "a folder name (not `.`, `..` or a root)"));
-    }
-    if let Some(p) = dir.parent().filter(|p| !p.as_os_str().is_empty() && !p.is_dir()) {
-        return Err(Error::invalid(field(), format!("a folder inside an existing one; create {} first", p.display())));
-    }
-    match std::fs::symlink_metadata(dir) {
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(false),
-        Err(e) => Err(Error::io(dir, e)),
-        Ok(m) if !m.is_dir() => Err(Error::invalid(field(), "a folder, but it is a file")),
-        Ok(_) => Ok(true),
-    }
-}
-
-/// Writes a folder atomically: `fill` writes the folder's files into a fresh staging folder
-/// beside `dir` (`.<name>.partial-<pid>-<n>`), which then replaces `dir` as a whole (an
-/// existing `dir` is moved aside first and deleted only once the new one is in place). On
-/// any error the staging folder is removed and `dir` is left as it was, so a reader never
-/// sees a folder mixing two writes. The caller decides whether `dir` may be replaced; a
-/// file at `dir` (or a missing parent) is refused before `fill` runs, see
-/// [`replaceable_folder`].
-pub fn write_dir_atomic(dir: impl AsRef<Path>, fill: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
-    let dir = dir.as_ref();
-    replaceable_folder(dir)?;
-    let staging = sibling(dir, "partial")?;
-    let written = std::fs::create_dir(&staging).map_err(|e| Error::io(&staging, e)).and_then(|()| fill(&staging));
-    if let Err(e) = written {
-        let _ = std::fs::remove_dir_all(&staging);
-        return Err(e);
-    }
-    replace_dir(&staging, dir)
-}
-
-/// A path beside `dir` for a staging or backup folder: `.<name>.<what>-<pid>-<n>`.
-fn sibling(dir: &Path, what: &str) -> Result<PathBuf> {
-    let name = dir
-        .file_name()
-        .ok_or_else(|| Error::invalid(format!("output folder {}", dir.display()), "a folder name"))?
-        .to_string_lossy()
-        .into_owned();
-    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.subsec_nanos());
-    Ok(dir.with_file_name(format!(".{name}.{what}-{}-{nanos}", std::process::id())))
-}
-
-/// Moves the finished folder `staging` to `dir`, replacing an existing `dir` (moved aside
-/// first and deleted only once `staging` is in place; put back if the move fails).
-fn replace_dir(staging: &Path, dir: &Path) -> Result<()> {
-    let fail = |e: std::io::Error| {
-        let _ = std::fs::remove_dir_all(staging);
-        Error::io(dir, e)
-    };
-    if !dir.exists() {
-        return std::fs::rename(staging, dir).map_err(fail);
-    }
-    let old = sibling(dir, "old")?;
-    std::fs::rename(dir, &old).map_err(fail)?;
-    if let Err(e) = std::fs::rename(staging, dir) {
-        let _ = std::fs::rename(&old, dir);
-        return Err(fail(e));
-    }
-    std::fs::remove_dir_all(&old).map_err(|e| Error::io(&old, e))
-}
-
-/// The 64-bit FNV-1a hash of `bytes` as 16 lower-case hex digits: the content check that
-/// view-set manifests (`cameras.json`) and batch item records store beside file sizes. Not
-/// cryptographic; it catches files from another run or a torn write, not tampering.
-pub fn fnv1a64(bytes: &[u8]) -> String {
-    let hash =
-        bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| (h ^ u64::from(b)).wrapping_mul(0x0000_0100_0000_01b3));
-    format!("{hash:016x}")
-}
-
-/// Writes a file atomically: `write` fills a buffered temporary file beside `path`,
-/// which is then flushed and renamed onto `path`. On any error the temporary file is
-/// removed and `path` is left untouched.
-pub fn write_atomic(path: impl AsRef<Path>, write: impl FnOnce(&mut BufWriter<File>) -> Result<()>) -> Result<()> {
-    let path = path.as_ref();
-    let tmp = temp_path(path);
-    let result = (|| {
-        let file = File::create(&tmp).map_err(|e| Error::io(path, e))?;
-        let mut w = BufWriter::new(file);
-        write(&mut w)?;
-        w.flush().map_err(|e| Error::io(path, e))?;
-        drop(w);
-        std::fs::rename(&tmp, path).map_err(|e| Error::io(path, e))
-    })();
-    if result.is_err() {
-        let _ = std::fs::remove_file(&tmp);
-    }
-    result
 }

@@ -3,9 +3,10 @@
 use std::io::Write;
 use std::path::Path;
 
+use crate::error::{Error, Result};
+use crate::files::write_atomic_all;
 use crate::image::Image;
-use crate::io::write_atomic_all;
-use crate::{Error, Mesh, Result};
+use crate::mesh::Mesh;
 
 /// Reads an OBJ file (all objects/groups concatenated, polygons fan-triangulated) with
 /// its normals, texture coordinates, vertex colours and — when the MTL gives one — the
@@ -24,7 +25,7 @@ use crate::{Error, Mesh, Result};
 /// of a line, leaves a valid shorter file and cannot be detected (OBJ has no counts).
 pub fn read_obj(path: impl AsRef<Path>) -> Result<Mesh> {
     let path = path.as_ref();
-    let bytes = crate::io::read_input(path)?;
+    let bytes = crate::files::read_input(path)?;
     let scan = check_obj_text(path, &String::from_utf8_lossy(&bytes))?;
     drop(bytes);
     let options = tobj::LoadOptions { single_index: true, triangulate: true, ignore_points: true, ignore_lines: true };

@@ -3,8 +3,9 @@
 use std::io::Write;
 use std::path::Path;
 
-use crate::io::write_atomic;
-use crate::{Error, Mesh, Result};
+use crate::error::{Error, Result};
+use crate::files::write_atomic;
+use crate::mesh::Mesh;
 
 #[derive(Debug, Clone, Copy, PartialEq)]
 enum Scalar {
@@ -105,7 +106,7 @@ impl Body<'_> {
 /// properties are skipped.
 pub fn read_ply(path: impl AsRef<Path>) -> Result<Mesh> {
     let path = path.as_ref();
-    let bytes = crate::io::read_input(path)?;
+    let bytes = crate::files::read_input(path)?;
     let bad = |field: &str, expected: &str| Error::format(path, field, expected);
     let header_end = find_header_end(&bytes).ok_or_else(|| bad("header", "a PLY header ending in `end_header`"))?;
     let header = std::str::from_utf8(&bytes[..header_end]).map_err(|_| bad("header", "ASCII header text"))?;

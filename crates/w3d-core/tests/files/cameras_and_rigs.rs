@@ -5,7 +5,7 @@ use glam::Vec3;
 use proptest::prelude::*;
 use w3d_core::{Camera, Image, Mesh, Projection, ViewImages, ViewRig, ViewSet};
 
-/// DESIGN.md §3: the Wonder3D rig, in order, with azimuths in degrees.
+/// The Wonder3D rig, in order, with azimuths in degrees (`docs/architecture.md`, "Conventions").
 const WONDER3D_TABLE: [(&str, f32); 6] =
     [("front", 0.0), ("front_right", 45.0), ("right", 90.0), ("back", 180.0), ("left", -90.0), ("front_left", -45.0)];
 

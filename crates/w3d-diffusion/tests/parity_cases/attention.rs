@@ -4,6 +4,7 @@
 //! gradients, at shapes that cross the kernels' query and key blocks.
 
 use crate::common::{relative_max_diff, test_devices, values};
+#[cfg(feature = "train")]
 use burn::tensor::GradientCheckpointingStrategy;
 use burn::tensor::module::attention;
 use burn::tensor::ops::AttentionModuleOptions;
@@ -94,6 +95,7 @@ fn burn_reference(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usize) -> Ten
 /// Inference runs the crate's CPU kernel, training its fused differentiable attention; both
 /// agree with Burn's attention at a multi-view shape (6 views × 256 tokens, 8 heads of 40
 /// channels).
+#[cfg(feature = "train")]
 #[test]
 fn cpu_kernels_match_burn_attention() {
     let [batch, t, heads, d] = [2, 6 * 256, 8, 40];
@@ -123,6 +125,7 @@ fn cpu_kernels_match_burn_attention() {
 /// attention's backward against Burn's attention differentiated op by op, with and without
 /// gradient checkpointing, at shapes that cross the 128-query and 512-key blocks, with one
 /// key, and with large scores.
+#[cfg(feature = "train")]
 #[test]
 fn fused_attention_gradients_match_burn_autodiff() {
     let cases = [([2, 200, 600, 2, 8], 1.0), ([3, 7, 1, 2, 4], 1.0), ([1, 130, 70, 1, 16], 6.0)];

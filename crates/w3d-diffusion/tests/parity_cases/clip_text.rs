@@ -97,7 +97,7 @@ fn text_encoder_is_causal_and_saves_round_trip() {
     assert_eq!(a[..3 * d], b[..3 * d]);
     assert_ne!(a[3 * d..4 * d], b[3 * d..4 * d]);
     let dir = tempfile::tempdir().unwrap();
-    model.save(dir.path(), w3d_diffusion::Precision::F32).unwrap();
+    model.save(dir.path()).unwrap();
     let loaded = ClipText::from_dir(dir.path(), &device).unwrap();
     assert_eq!(loaded.config(), model.config());
     assert_eq!(values(loaded.encode(&[vec![744, 10, 20, 30, 745]]).unwrap()), a);

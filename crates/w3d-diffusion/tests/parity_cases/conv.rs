@@ -4,6 +4,7 @@
 
 use crate::common::{max_abs, max_abs_diff, relative_max_diff, test_devices, values};
 use burn::module::Param;
+#[cfg(feature = "train")]
 use burn::tensor::GradientCheckpointingStrategy;
 use w3d_diffusion::gaussian_noise;
 use w3d_diffusion::nn::{Conv2d, ConvAlgorithm, im2col_conv2d};
@@ -45,6 +46,7 @@ fn im2col_matches_direct_convolution() {
 /// weight and bias: `Conv2d`'s default path under autodiff (on flex, the crate's kernel)
 /// against Burn's `conv2d` differentiated by Burn, with and without gradient checkpointing
 /// and with and without a bias.
+#[cfg(feature = "train")]
 #[test]
 fn training_convolution_gradients_match_burn_autodiff() {
     // (c_in, c_out, h, w, kernel, stride, padding, bias)

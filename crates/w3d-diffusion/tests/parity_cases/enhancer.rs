@@ -7,7 +7,7 @@
 //! injected (torch's generator cannot be reproduced).
 
 use crate::common::{fixture, max_abs, max_abs_diff, tensor, test_devices};
-use w3d_diffusion::enhancer::{
+use w3d_diffusion::pipelines::enhancer::{
     EnhancerConditioning, EnhancerOptions, EnhancerPipeline, ImageTokens, PromptEmbeddings, make_grid, split_grid,
 };
 use w3d_diffusion::{SafetensorsFile, Tensor};

@@ -5,6 +5,7 @@
 //! kernel repeats flex's arithmetic operation for operation, so on flex they agree bit for bit.
 
 use crate::common::{relative_max_diff, test_devices, values};
+#[cfg(feature = "train")]
 use burn::tensor::GradientCheckpointingStrategy;
 use burn::tensor::activation::gelu;
 use w3d_diffusion::gaussian_noise;
@@ -39,6 +40,7 @@ fn geglu_matches_burn_operations_in_inference() {
     }
 }
 
+#[cfg(feature = "train")]
 #[test]
 fn training_geglu_gradients_match_burn_autodiff() {
     for (name, device) in test_devices() {
@@ -65,6 +67,7 @@ fn training_geglu_gradients_match_burn_autodiff() {
 
 /// The training gradient against central differences of the inference output (f64 sums of
 /// the f32 values): a check of the derivative that does not rely on Burn's.
+#[cfg(feature = "train")]
 #[test]
 fn geglu_gradient_matches_finite_differences() {
     let device = w3d_diffusion::default_device();

@@ -6,7 +6,7 @@ use std::path::Path;
 use crate::common::fixture;
 use w3d_core::{Image, ViewImages, ViewSet};
 use w3d_diffusion::train::Stage;
-use w3d_diffusion::training_set::{Background, EncodedSample, TrainDomain, TrainingSet, assemble_batch};
+use w3d_diffusion::train::data::{Background, EncodedSample, TrainDomain, TrainingSet, assemble_batch};
 use w3d_diffusion::{CameraType, MultiViewPipeline};
 
 const SIZE: u32 = 32; // the tiny fixture model's image side (8 × the VAE's 4)
@@ -203,8 +203,8 @@ fn stage_two_pipeline(device: &w3d_diffusion::Device) -> MultiViewPipeline {
 
 #[test]
 fn a_resumed_run_continues_the_uninterrupted_one_exactly() {
+    use w3d_diffusion::train::data::EncodedSet;
     use w3d_diffusion::train::{RunEvent, RunOptions, TrainOptions, run_training, run_training_encoded};
-    use w3d_diffusion::training_set::EncodedSet;
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
     std::fs::create_dir(&data).unwrap();

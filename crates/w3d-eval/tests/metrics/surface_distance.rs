@@ -7,7 +7,8 @@ use std::path::PathBuf;
 use glam::{DQuat, DVec2, DVec3, EulerRot};
 use w3d_core::{Mesh, load_mesh};
 use w3d_eval::{
-    MAX_SAMPLES, MeshDistance, SurfaceComparison, closest_point_on_triangle, sample_surface, surface_chamfer,
+    EvalOptions, MAX_SAMPLES, MeshDistance, SurfaceComparison, closest_point_on_triangle, evaluate, sample_surface,
+    surface_chamfer,
 };
 use w3d_remesh::icosphere;
 
@@ -251,4 +252,15 @@ fn zero_samples_and_zero_area_meshes_are_errors() {
     assert!(err.contains("gt mesh surface area"), "{err}");
     let err = surface_chamfer(&flat, &sphere, 100, 0).unwrap_err().to_string();
     assert!(err.contains("pred mesh surface area"), "{err}");
+}
+
+/// `evaluate` refuses more surface samples than `sample_surface` allows, naming the option,
+/// before it samples anything.
+#[test]
+fn evaluate_refuses_more_samples_than_the_cap() {
+    let square =
+        Mesh::new(vec![[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.0], [0.0, 1.0, 0.0]], vec![[0, 1, 2], [0, 2, 3]])
+            .unwrap();
+    let err = evaluate(&square, &square, &EvalOptions::default().with_samples(MAX_SAMPLES + 1)).unwrap_err();
+    assert!(err.to_string().contains("options.samples"), "{err}");
 }

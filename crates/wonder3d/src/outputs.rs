@@ -1,0 +1,164 @@
+//! Output-path checks for front ends such as the `wonder3d` command line: each one fails in
+//! a millisecond, before any long work, when an output path cannot take what a command will
+//! write there (a wrong extension, a missing parent folder, a folder where a file goes, two
+//! outputs on one file).
+
+use std::path::{Path, PathBuf};
+
+use w3d_core::{Error, Result, ViewSet};
+
+/// The files that saving a mesh to `path` writes: `path` itself, and for `.obj` also
+/// `<stem>.mtl` and `<stem>.png` beside it (written when the mesh has a texture).
+pub fn mesh_output_files(path: impl AsRef<Path>) -> Vec<PathBuf> {
+    let path = path.as_ref();
+    let mut files = Vec::new();
+    if path.extension().is_some_and(|e| e.eq_ignore_ascii_case("obj")) {
+        let stem = path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        files.push(path.with_file_name(format!("{stem}.png")));
+        files.push(path.with_file_name(format!("{stem}.mtl")));
+    }
+    files.push(path.to_path_buf());
+    files
+}
+
+/// Fails unless `path` can take a mesh: a supported extension (`.glb`, `.obj`, `.ply`;
+/// `.gltf` is read-only and refused) and, for every file the save writes
+/// ([`mesh_output_files`]), an existing parent folder and no folder of that name. Call it
+/// before long work so a typo fails in a millisecond, not after the reconstruction.
+pub fn check_mesh_output(path: impl AsRef<Path>) -> Result<()> {
+    let path = path.as_ref();
+    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    if !matches!(ext.as_deref(), Some("glb" | "obj" | "ply")) {
+        return Err(Error::invalid(
+            format!("output {}", path.display()),
+            "a .glb, .obj or .ply file name (the mesh formats this library writes)",
+        ));
+    }
+    mesh_output_files(path).iter().try_for_each(|f| check_parent(f))
+}
+
+/// Fails unless the folder that would hold `path` exists (an empty parent is the working
+/// directory) and `path` itself is not a folder.
+pub fn check_parent(path: &Path) -> Result<()> {
+    if path.is_dir() {
+        return Err(Error::invalid(format!("output {}", path.display()), "a file name, but it is a folder"));
+    }
+    match path.parent() {
+        Some(parent) if !parent.as_os_str().is_empty() && !parent.is_dir() => Err(Error::invalid(
+            format!("output {}", path.display()),
+            format!("an existing folder {}; create it first", parent.display()),
+        )),
+        _ => Ok(()),
+    }
+}
+
+/// Fails unless `dir` can receive a view-set folder (`wonder3d render`, `generate`, `run
+/// --views`): see [`ViewSet::check_output_dir`] (a new folder in an existing one, or an
+/// earlier view-set folder, which the new set replaces as a whole).
+pub fn check_out_dir(dir: impl AsRef<Path>) -> Result<()> {
+    ViewSet::check_output_dir(dir)
+}
+
+/// Fails unless `dir` can hold named output files (created if missing, like the demo's
+/// folder): not a file, and its parent an existing folder.
+pub fn check_out_folder(dir: impl AsRef<Path>) -> Result<()> {
+    let dir = dir.as_ref();
+    if dir.exists() && !dir.is_dir() {
+        return Err(Error::invalid(format!("output folder {}", dir.display()), "a folder, but it is a file"));
+    }
+    match dir.parent() {
+        Some(p) if !p.as_os_str().is_empty() && !p.is_dir() => Err(Error::invalid(
+            format!("output folder {}", dir.display()),
+            format!("a folder inside an existing one; create {} first", p.display()),
+        )),
+        _ => Ok(()),
+    }
+}
+
+/// Checks every output of a command before any work: the mesh ([`check_mesh_output`]),
+/// the report file ([`check_parent`]) and the view-set folder ([`check_out_dir`]) when
+/// given, and that no two of them are the same file and that neither file lies inside the
+/// view-set folder (which is replaced as a whole).
+pub fn check_outputs(mesh: &Path, report: Option<&Path>, views: Option<&Path>) -> Result<()> {
+    check_mesh_output(mesh)?;
+    if let Some(report) = report {
+        check_parent(report)?;
+    }
+    if let Some(views) = views {
+        check_out_dir(views)?;
+    }
+    let absolute = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+    let mut files: Vec<PathBuf> = mesh_output_files(mesh);
+    files.extend(report.map(Path::to_path_buf));
+    for (i, a) in files.iter().enumerate() {
+        if let Some(b) = files[..i].iter().find(|b| absolute(b) == absolute(a)) {
+            return Err(Error::invalid(
+                format!("output {}", a.display()),
+                format!("a file of its own, but {} is written there too", b.display()),
+            ));
+        }
+        if let Some(views) = views
+            && absolute(a).parent() == Some(absolute(views).as_path())
+        {
+            return Err(Error::invalid(
+                format!("output {}", a.display()),
+                format!("a file outside the view folder {} (which is replaced as a whole)", views.display()),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Fails unless `path` can take a PNG: a `.png` name in an existing folder. Call it before
+/// the work.
+pub fn check_png_output(path: impl AsRef<Path>) -> Result<()> {
+    let path = path.as_ref();
+    let ext = path.extension().and_then(|e| e.to_str()).map(str::to_ascii_lowercase);
+    if ext.as_deref() != Some("png") {
+        return Err(Error::invalid(
+            format!("output {}", path.display()),
+            "a .png file name (RGBA images are written as PNG)",
+        ));
+    }
+    check_parent(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn output_folders_may_exist_but_not_be_files() {
+        let dir = tempfile::tempdir().unwrap();
+        // An existing folder (a second demo run into the same folder) is fine, a new one too.
+        check_out_folder(dir.path()).unwrap();
+        check_out_folder(dir.path().join("new")).unwrap();
+        let file = dir.path().join("file");
+        std::fs::write(&file, "x").unwrap();
+        assert!(check_out_folder(&file).unwrap_err().to_string().contains("it is a file"));
+        assert!(check_out_folder(dir.path().join("a/b")).unwrap_err().to_string().contains("create"));
+    }
+
+    #[test]
+    fn every_output_is_checked_together() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = |name: &str| dir.path().join(name);
+        check_outputs(&p("m.glb"), Some(&p("r.json")), Some(&p("views"))).unwrap();
+        check_outputs(&p("m.obj"), None, None).unwrap();
+        let err = |mesh: &str, report: Option<&str>, views: Option<&str>| {
+            let (report, views) = (report.map(p), views.map(p));
+            check_outputs(&p(mesh), report.as_deref(), views.as_deref()).unwrap_err().to_string()
+        };
+        assert!(err("m.stl", None, None).contains(".glb, .obj or .ply"));
+        assert!(err("m.glb", Some("m.glb"), None).contains("written there too"));
+        assert!(err("m.obj", Some("m.mtl"), None).contains("written there too"));
+        std::fs::create_dir(p("views")).unwrap();
+        assert!(err("views/m.glb", None, Some("views")).contains("replaced as a whole"));
+        assert!(err("m.glb", Some("no/r.json"), None).contains("create it first"));
+        // An OBJ whose texture name is taken by a folder is refused before any work.
+        std::fs::create_dir(p("t.png")).unwrap();
+        assert!(err("t.obj", None, None).contains("t.png"));
+        assert_eq!(mesh_output_files(p("t.obj")), vec![p("t.png"), p("t.mtl"), p("t.obj")]);
+        assert_eq!(mesh_output_files(p("t.glb")), vec![p("t.glb")]);
+    }
+}
