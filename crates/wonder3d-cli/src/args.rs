@@ -117,7 +117,7 @@ pub const MAX_EVAL_SAMPLES: usize = 10_000_000;
 /// A whole number in `lo..=hi`, read as a signed value so that `-1` gets this range
 /// message rather than clap's "unexpected argument" (whose `-- -1` tip cannot work for an
 /// option value).
-fn whole_in<T: TryFrom<i128>>(s: &str, lo: i128, hi: i128, unit: &str) -> Result<T, String> {
+pub(crate) fn whole_in<T: TryFrom<i128>>(s: &str, lo: i128, hi: i128, unit: &str) -> Result<T, String> {
     let range = || format!("a whole number from {lo} to {hi}{unit}");
     let v: i128 = s.trim().parse().map_err(|_| format!("expected {}, got {s:?}", range()))?;
     if v < lo || v > hi {
@@ -127,7 +127,7 @@ fn whole_in<T: TryFrom<i128>>(s: &str, lo: i128, hi: i128, unit: &str) -> Result
 }
 
 /// A finite number in `lo..=hi` (NaN and infinities refused).
-fn finite_in(s: &str, lo: f64, hi: f64, what: &str) -> Result<f64, String> {
+pub(crate) fn finite_in(s: &str, lo: f64, hi: f64, what: &str) -> Result<f64, String> {
     let v: f64 = s.trim().parse().map_err(|_| format!("expected {what} from {lo} to {hi}, got {s:?}"))?;
     if !v.is_finite() || v < lo || v > hi {
         return Err(format!("expected {what} from {lo} to {hi}, got {s}"));

@@ -25,17 +25,17 @@ pub struct BatchArgs {
     out: PathBuf,
     /// Run shard I of N (0-based): items I, I+N, I+2N, … Default: from SLURM_ARRAY_TASK_ID /
     /// SLURM_ARRAY_TASK_COUNT, or JOB_COMPLETION_INDEX / W3D_SHARD_COUNT, else the whole manifest.
-    #[arg(long, value_parser = shard)]
+    #[arg(long, allow_hyphen_values = true, value_parser = shard)]
     shard: Option<Shard>,
     /// Continue an earlier run into the same --out: skip items whose outputs are complete
     /// and valid, run the others again.
     #[arg(long)]
     resume: bool,
     /// Items at once in this process (reconstruction overlaps; generation is one at a time).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u16).range(1..=256))]
+    #[arg(long, default_value_t = 1, allow_hyphen_values = true, value_parser = jobs)]
     jobs: u16,
     /// Give up an item after this many seconds (checked at every optimisation or sampling step).
-    #[arg(long, value_parser = seconds)]
+    #[arg(long, allow_hyphen_values = true, value_parser = seconds)]
     timeout: Option<f64>,
     /// Reconstruction preset of items that name none.
     #[arg(long, value_enum, default_value_t = PresetArg::Default)]
@@ -62,6 +62,11 @@ pub struct BatchArgs {
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
+}
+
+/// `--jobs`: 1 to 256 items at once.
+fn jobs(s: &str) -> std::result::Result<u16, String> {
+    crate::args::whole_in(s, 1, 256, " items at once")
 }
 
 fn shard(s: &str) -> std::result::Result<Shard, String> {

@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use wonder3d::outputs::check_png_output;
+use wonder3d::outputs::{check_distinct, check_png_output};
 use wonder3d::photo::FrameOptions;
 use wonder3d::{Error, PrepareOptions, Prepared, Result, prepare_image};
 
@@ -25,14 +25,24 @@ pub struct PrepareArgs {
     #[arg(long)]
     pub mask_out: Option<PathBuf>,
     /// Side of the square output in pixels (the object's longest side is 75 % of it).
-    #[arg(long, default_value_t = 512)]
+    #[arg(long, default_value_t = 512, allow_hyphen_values = true, value_parser = size)]
     pub size: u32,
     /// Refuse automatic masks less confident than this, in [0, 1] (0 accepts every mask).
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, allow_hyphen_values = true, value_parser = min_confidence)]
     pub min_confidence: f32,
     /// Print the result as one JSON object.
     #[arg(long)]
     pub json: bool,
+}
+
+/// `--size`: 16 to 8192 pixels.
+fn size(s: &str) -> std::result::Result<u32, String> {
+    crate::args::whole_in(s, 16, 8192, " pixels")
+}
+
+/// `--min-confidence`: a confidence in [0, 1].
+fn min_confidence(s: &str) -> std::result::Result<f32, String> {
+    crate::args::finite_in(s, 0.0, 1.0, "a confidence").map(|c| c as f32)
 }
 
 /// One line on what the preparation did: where the mask came from and how far to trust it.
@@ -52,12 +62,9 @@ pub fn run(args: &PrepareArgs) -> Result<()> {
     if let Some(mask) = &args.mask_out {
         check_png_output(mask)?;
     }
-    if !(0.0..=1.0).contains(&args.min_confidence) {
-        return Err(Error::invalid("--min-confidence", format!("a value in [0, 1], got {}", args.min_confidence)));
-    }
-    if !(16..=8192).contains(&args.size) {
-        return Err(Error::invalid("--size", format!("16 to 8192 pixels, got {}", args.size)));
-    }
+    let mut outputs = vec![("--out", args.out.as_path())];
+    outputs.extend(args.mask_out.as_deref().map(|mask| ("--mask-out", mask)));
+    check_distinct(&outputs, &[("IMAGE", args.image.as_path())])?;
     let options = PrepareOptions::default()
         .with_crop(!args.no_crop)
         .with_min_confidence(args.min_confidence)

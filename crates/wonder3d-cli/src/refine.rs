@@ -58,7 +58,7 @@ pub struct RefineArgs {
     #[arg(long)]
     out: PathBuf,
     /// Refinement iterations (the reference runs 2; 0 textures MESH as `wonder3d run` would).
-    #[arg(long, default_value_t = RefineOptions::default().iterations, value_parser = crate::args::refine_iterations)]
+    #[arg(long, default_value_t = RefineOptions::default().iterations, allow_hyphen_values = true, value_parser = crate::args::refine_iterations)]
     iterations: usize,
     /// Side of the renders and enhanced views in pixels (the reference: 512).
     #[arg(long, default_value_t = RefineOptions::default().size, allow_hyphen_values = true, value_parser = crate::args::view_size)]
@@ -95,11 +95,26 @@ pub fn run(args: &RefineArgs) -> Result<()> {
         options = options.clone().with_mesh(options.mesh.with_simplify_tolerance(tolerance));
     }
     let mut geometry = load_mesh(&args.mesh)?.without_attributes();
+    // Refinement fits a closed surface to the enhanced views; an open or torn mesh would be
+    // "refined" into something the views never showed.
+    if !geometry.merge_by_position().0.topology().is_watertight() {
+        return Err(Error::invalid(
+            format!("MESH {}", args.mesh.display()),
+            "a closed mesh, every edge shared by two triangles (wonder3d reconstruct writes one)",
+        ));
+    }
     crate::args::orient_outward(&mut geometry, &args.mesh);
     let enhancer: Box<dyn Enhancer> = match &args.enhancer {
         EnhancerArg::Identity => Box::new(IdentityEnhancer),
         EnhancerArg::Oracle(path) => {
             let mut truth = load_mesh(path)?;
+            // Renders of a mesh without area are empty: every view would say "nothing here".
+            if truth.surface_area().partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+                return Err(Error::invalid(
+                    format!("--enhancer oracle:{}", path.display()),
+                    "a mesh with a surface (its triangles all have zero area)",
+                ));
+            }
             crate::args::orient_outward(&mut truth, path);
             if !args.no_normalize {
                 truth.normalize_unit_cube();
@@ -179,7 +194,7 @@ pub struct RefineAfterArgs {
     enhancer: Option<PathBuf>,
     /// Refinement iterations: 2 by default with --enhancer (the authors' count), 0 without;
     /// 0 writes the coarse mesh, as without --enhancer.
-    #[arg(long, value_parser = crate::args::refine_iterations)]
+    #[arg(long, allow_hyphen_values = true, value_parser = crate::args::refine_iterations)]
     refine: Option<usize>,
     /// Side of the refinement's renders and enhanced views in pixels (the reference: 512).
     #[arg(long, default_value_t = RefineOptions::default().size, allow_hyphen_values = true, value_parser = crate::args::view_size)]

@@ -39,7 +39,7 @@ pub struct TrainArgs {
     /// Stage: 1 multi-domain pre-training (no switcher), 2 mixed-domain with the domain
     /// switcher, 3 cross-domain alignment (only the joint attention trains; added to a model
     /// that lacks it).
-    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=3))]
+    #[arg(long, allow_hyphen_values = true, value_parser = clap::value_parser!(u8).range(1..=3))]
     pub stage: u8,
     /// Training set folder (`wonder3d dataset`), at the model's image size.
     #[arg(long)]
@@ -53,26 +53,26 @@ pub struct TrainArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// Optimizer steps to reach (with `--resume`, counting the steps already done).
-    #[arg(long, default_value_t = 1000, value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
+    #[arg(long, default_value_t = 1000, allow_hyphen_values = true, value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
     pub steps: u64,
     /// Peak learning rate (default: the stage's, 1e-4 / 5e-5 / 2e-5).
-    #[arg(long, value_parser = crate::args::learning_rate)]
+    #[arg(long, allow_hyphen_values = true, value_parser = crate::args::learning_rate)]
     pub lr: Option<f64>,
     /// Linear warm-up in optimizer steps.
-    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(0..=10_000_000))]
+    #[arg(long, default_value_t = 100, allow_hyphen_values = true, value_parser = clap::value_parser!(u64).range(0..=10_000_000))]
     pub warmup: u64,
     /// The learning rate after the warm-up: `constant` (the authors') or `linear`, from the
     /// peak down to 0 at `--steps` (a cool-down; keep `--steps` when resuming).
     #[arg(long, value_enum, default_value_t = LrScheduleArg::Constant)]
     pub lr_schedule: LrScheduleArg,
     /// Objects per micro-batch (each 6 views, or 12 in stage 3).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=1024))]
+    #[arg(long, default_value_t = 1, allow_hyphen_values = true, value_parser = clap::value_parser!(u64).range(1..=1024))]
     pub objects_per_batch: u64,
     /// Micro-batches accumulated into one optimizer step.
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..=1024))]
+    #[arg(long, default_value_t = 1, allow_hyphen_values = true, value_parser = clap::value_parser!(u64).range(1..=1024))]
     pub accumulate: u64,
     /// Write a checkpoint every this many optimizer steps (and at the end).
-    #[arg(long, default_value_t = 100, value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
+    #[arg(long, default_value_t = 100, allow_hyphen_values = true, value_parser = clap::value_parser!(u64).range(1..=10_000_000))]
     pub checkpoint_every: u64,
     /// Seed of the sample, domain, timestep, noise and dropout draws.
     #[arg(long, default_value_t = 0, allow_hyphen_values = true, value_parser = crate::args::seed)]
@@ -81,7 +81,7 @@ pub struct TrainArgs {
     /// (e.g. 0.999; diffusers' warm-up `min(decay, (1 + s) / (10 + s))`): checkpoints hold it
     /// in `unet_ema/`, and the end of the run writes the whole model with it to
     /// `OUT/model-ema` (the model to generate with).
-    #[arg(long, value_parser = crate::args::ema_decay)]
+    #[arg(long, allow_hyphen_values = true, value_parser = crate::args::ema_decay)]
     pub ema_decay: Option<f64>,
     /// Min-SNR-γ loss weighting: a number (the authors' 5, the default) or `none` for the
     /// plain MSE of the model's prediction type (the small model's recipe, `docs/training.md`).

@@ -109,6 +109,36 @@ pub fn check_outputs(mesh: &Path, report: Option<&Path>, views: Option<&Path>) -
     Ok(())
 }
 
+/// Fails when two of a command's `outputs` are the same file, or an output is one of its
+/// `inputs`: each entry names the flag or argument (`"--mask-out"`, `"IMAGE"`) and its path.
+/// Paths are compared absolute, and through the file system where both exist (a link, or
+/// `a/../b`, names the same file). Call it with the other checks, before any work: otherwise
+/// the second write silently replaces the first, or the input is gone before it is read.
+pub fn check_distinct(outputs: &[(&str, &Path)], inputs: &[(&str, &Path)]) -> Result<()> {
+    let same = |a: &Path, b: &Path| {
+        let absolute = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+        match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
+            (Ok(a), Ok(b)) => a == b,
+            _ => absolute(a) == absolute(b),
+        }
+    };
+    for (i, &(name, path)) in outputs.iter().enumerate() {
+        if let Some(&(other, _)) = outputs[..i].iter().find(|(_, p)| same(p, path)) {
+            return Err(Error::invalid(
+                name,
+                format!("a file of its own ({} is also the {other} output)", path.display()),
+            ));
+        }
+        if let Some(&(input, _)) = inputs.iter().find(|(_, p)| same(p, path)) {
+            return Err(Error::invalid(
+                name,
+                format!("a file other than the {input} input ({} would be overwritten)", path.display()),
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Fails unless `path` can take a PNG: a `.png` name in an existing folder. Call it before
 /// the work.
 pub fn check_png_output(path: impl AsRef<Path>) -> Result<()> {

@@ -106,6 +106,11 @@ fn dataset_refuses_bad_input_before_any_rendering() {
     std::fs::write(&corrupt, "v 0 0 0\nv 1 0 0\nf 1 2 7\n").unwrap();
     let err = fails(&["dataset", &torus, s(&corrupt), "--out", s(&out)]);
     assert!(err.contains("corrupt.obj"), "{err}");
+    // A mesh whose triangles have no area would give samples with empty masks.
+    let flat = dir.path().join("flat.obj");
+    std::fs::write(&flat, "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n").unwrap();
+    let err = fails(&["dataset", &torus, s(&flat), "--out", s(&out)]);
+    assert!(err.contains("flat.obj") && err.contains("zero area"), "{err}");
     let err = fails(&["dataset", &torus, "--out", s(&out), "--size", "8"]);
     assert!(err.contains("16 to 2048 pixels"), "{err}");
     let err = fails(&["dataset", &torus, "--out", s(&out), "--samples", "0"]);
@@ -124,5 +129,5 @@ fn dataset_refuses_bad_input_before_any_rendering() {
     let err = fails(&["dataset", &torus, "--out", s(&dir.path().join("no/train"))]);
     assert!(err.contains("create"), "{err}");
     assert_eq!(std::fs::read_to_string(&file).unwrap(), "mine");
-    assert_eq!(names(dir.path()), ["corrupt.obj", "file.txt"]);
+    assert_eq!(names(dir.path()), ["corrupt.obj", "file.txt", "flat.obj"]);
 }

@@ -168,6 +168,42 @@ fn negative_and_non_finite_numbers_get_a_range_error() {
     assert!(err.contains("exponent"), "{err}");
 }
 
+/// The newer commands' numeric options take negative values as values: the option's range is
+/// named, not clap's "unexpected argument '-1'" with its `-- -1` tip.
+#[test]
+fn negative_numbers_of_the_newer_commands_get_a_range_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let (missing, out_dir, out_glb) = (dir.path().join("missing"), dir.path().join("out"), dir.path().join("out.glb"));
+    let (m, out, glb) = (s(&missing), s(&out_dir), s(&out_glb));
+    let cases: [(&[&str], &str, &str); 6] = [
+        (&["batch", m, "--out", out, "--shard", "-1/2"], "--shard", "-1/2"),
+        (&["batch", m, "--out", out, "--jobs", "-1"], "--jobs", "from 1 to 256"),
+        (&["train", "--stage", "3", "--data", m, "--init", m, "--out", out, "--steps", "-1"], "--steps", "-1"),
+        (
+            &["train", "--stage", "3", "--data", m, "--init", m, "--out", out, "--lr", "-1e-4"],
+            "--lr",
+            "a learning rate",
+        ),
+        (
+            &["refine", m, m, "--enhancer", "identity", "--out", glb, "--iterations", "-1"],
+            "--iterations",
+            "from 0 to 10",
+        ),
+        (&["train", "--stage", "-2", "--data", m, "--init", m, "--out", out], "--stage", "-2"),
+    ];
+    for (args, option, expect) in cases {
+        let err = fails_within(5, args);
+        assert!(
+            err.contains(option)
+                && err.contains(expect)
+                && !err.contains("unexpected argument")
+                && !err.contains("tip"),
+            "{args:?}: {err}"
+        );
+    }
+    assert!(!dir.path().join("out").exists() && !dir.path().join("out.glb").exists());
+}
+
 #[test]
 fn outputs_are_checked_before_any_work() {
     let dir = tempfile::tempdir().unwrap();

@@ -117,6 +117,29 @@ fn bad_paths_and_values_fail_before_work() {
         let err = String::from_utf8_lossy(&run.stderr);
         assert!(err.contains(expect), "{all:?}: {err}");
     }
+    // Two outputs on one file, or an output on the input, are refused before any work (the
+    // mask used to overwrite the RGBA output and the command reported success).
+    let same = dir.path().join("same.png");
+    let input_bytes = std::fs::read(&input).unwrap();
+    let run = wonder3d(&["prepare", s(&input), "--out", s(&same), "--mask-out", s(&same)]);
+    assert_eq!(run.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("--mask-out") && err.contains("--out output"), "{err}");
+    let run = wonder3d(&["prepare", s(&input), "--out", s(&input)]);
+    assert_eq!(run.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("--out") && err.contains("IMAGE input"), "{err}");
+    assert!(!same.exists());
+    assert!(std::fs::read(&input).unwrap() == input_bytes, "the input is untouched");
+    // Negative numbers get the option's range, not clap's "unexpected argument".
+    for (option, value, range) in
+        [("--size", "-1", "from 16 to 8192 pixels"), ("--min-confidence", "-0.5", "a confidence from 0 to 1")]
+    {
+        let run = wonder3d(&["prepare", s(&input), "--out", s(&same), option, value]);
+        assert_eq!(run.status.code(), Some(2), "{option} {value}");
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert!(err.contains(option) && err.contains(range) && !err.contains("tip"), "{option} {value}: {err}");
+    }
     let run = wonder3d(&["prepare", s(&dir.path().join("nope.jpg")), "--out", s(&dir.path().join("o.png"))]);
     assert!(!run.status.success());
     assert!(String::from_utf8_lossy(&run.stderr).contains("nope.jpg"));

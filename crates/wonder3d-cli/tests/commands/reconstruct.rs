@@ -191,6 +191,21 @@ fn refine_names_what_is_wrong_before_any_work() {
     let run = wonder3d(&["refine", &spot(), "no-such-views", "--enhancer", "identity", "--out", o]);
     assert_eq!(run.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&run.stderr).contains("no-such-views"));
+    // An open MESH, and an oracle mesh without area, are named before any work.
+    let open = dir.path().join("open.obj");
+    std::fs::write(&open, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    let run = wonder3d(&["refine", open.to_str().unwrap(), v, "--enhancer", "identity", "--out", o]);
+    assert_eq!(run.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("open.obj") && err.contains("a closed mesh"), "{err}");
+    let flat = dir.path().join("flat.obj");
+    std::fs::write(&flat, "v 0 0 0\nv 1 0 0\nv 2 0 0\nv 3 0 0\nf 1 2 3\nf 2 3 4\n").unwrap();
+    let oracle = format!("oracle:{}", flat.display());
+    let run = wonder3d(&["refine", &spot(), v, "--enhancer", &oracle, "--out", o]);
+    assert_eq!(run.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("--enhancer oracle:") && err.contains("flat.obj") && err.contains("zero area"), "{err}");
+    assert!(!out.exists());
     // An output that cannot be written fails before the work.
     let nowhere = dir.path().join("missing-folder").join("x.glb");
     let run = wonder3d(&["refine", &spot(), v, "--enhancer", "identity", "--out", nowhere.to_str().unwrap()]);
