@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use wonder3d::core::io::write_atomic;
-use wonder3d::outputs::check_outputs;
+use wonder3d::outputs::{check_distinct, check_outputs, mesh_output_files};
 use wonder3d::refine::{
     Enhancer, IdentityEnhancer, OracleEnhancer, RefineOptions, RefineProgress, RefineStep, Refined, refine,
 };
@@ -87,6 +87,14 @@ pub struct RefineArgs {
 /// Runs `wonder3d refine`.
 pub fn run(args: &RefineArgs) -> Result<()> {
     check_outputs(&args.out, args.report.as_deref(), None)?;
+    let written = mesh_output_files(&args.out);
+    let mut outputs: Vec<(&str, &std::path::Path)> = written.iter().map(|f| ("--out", f.as_path())).collect();
+    outputs.extend(args.report.as_deref().map(|report| ("--report", report)));
+    let mut inputs = vec![("MESH", args.mesh.as_path())];
+    if let EnhancerArg::Oracle(oracle) = &args.enhancer {
+        inputs.push(("--enhancer oracle:", oracle.as_path()));
+    }
+    check_distinct(&outputs, &inputs)?;
     let texture = TextureOptions::default().with_size(args.texture_size);
     texture.validate()?;
     let mut options =

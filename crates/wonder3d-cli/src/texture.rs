@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use wonder3d::outputs::check_mesh_output;
+use wonder3d::outputs::{check_distinct, check_mesh_output, mesh_output_files};
 use wonder3d::texture::{bake_with_progress, fuse_vertex_colours};
 use wonder3d::{Progress, Result, Stage, TextureOptions, ViewSet, load_mesh, save_mesh};
 
@@ -49,6 +49,9 @@ pub struct TextureArgs {
 /// Runs `wonder3d texture`.
 pub fn run(args: &TextureArgs) -> Result<()> {
     check_mesh_output(&args.out)?;
+    let outputs = mesh_output_files(&args.out);
+    let outputs: Vec<(&str, &std::path::Path)> = outputs.iter().map(|f| ("--out", f.as_path())).collect();
+    check_distinct(&outputs, &[("MESH", args.mesh.as_path())])?;
     let options = TextureOptions::default()
         .with_size(args.size)
         .with_padding(args.padding)

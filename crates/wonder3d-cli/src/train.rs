@@ -146,6 +146,16 @@ pub fn run(args: &TrainArgs) -> Result<()> {
         eprintln!("device: {}", opened.description);
     }
     let mut pipeline = MultiViewPipeline::from_dir(&args.init, &opened.device)?;
+    if stage != Stage::CrossDomain && pipeline.unet().config().cd_attention_mid {
+        return Err(Error::invalid(
+            "--stage",
+            format!(
+                "3 for {} (its UNet has cross-domain attention, which pairs each image with its other \
+                 domain; stages 1 and 2 train the model before that attention exists)",
+                args.init.display()
+            ),
+        ));
+    }
     if stage == Stage::CrossDomain && !pipeline.unet().config().cd_attention_mid && !args.resume {
         eprintln!(
             "note: {} has no cross-domain attention; adding it (zero-initialised output) for stage 3",

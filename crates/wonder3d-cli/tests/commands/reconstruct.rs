@@ -191,6 +191,22 @@ fn refine_names_what_is_wrong_before_any_work() {
     let run = wonder3d(&["refine", &spot(), "no-such-views", "--enhancer", "identity", "--out", o]);
     assert_eq!(run.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&run.stderr).contains("no-such-views"));
+    // An output on an input is refused before it could overwrite it.
+    let copy = dir.path().join("copy.obj");
+    std::fs::copy(spot(), &copy).unwrap();
+    let before = std::fs::read(&copy).unwrap();
+    let (c, oracle_copy) = (copy.to_str().unwrap(), format!("oracle:{}", copy.display()));
+    for (args, input) in [
+        (vec!["refine", c, v, "--enhancer", "identity", "--out", c], "MESH input"),
+        (vec!["refine", &spot(), v, "--enhancer", &oracle_copy, "--out", c], "--enhancer oracle: input"),
+        (vec!["texture", c, v, "--out", c], "MESH input"),
+    ] {
+        let run = wonder3d(&args);
+        assert_eq!(run.status.code(), Some(1), "{args:?}");
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert!(err.contains("--out") && err.contains(input), "{args:?}: {err}");
+    }
+    assert!(std::fs::read(&copy).unwrap() == before, "the input mesh is untouched");
     // An open MESH, and an oracle mesh without area, are named before any work.
     let open = dir.path().join("open.obj");
     std::fs::write(&open, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();

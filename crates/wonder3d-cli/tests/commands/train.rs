@@ -118,6 +118,15 @@ fn train_refuses_bad_input_before_loading_the_model() {
     let out = wonder3d(&all);
     assert!(!out.status.success() && stderr(&out).contains("lr_schedule"), "{}", stderr(&out));
     assert!(!dir.path().join("run").exists(), "a refused run left its folder");
+    // An earlier stage on a checkpoint that already has the cross-domain attention names the
+    // flag and the checkpoint (it used to name an internal field, `batch.domains`).
+    for stage in ["1", "2"] {
+        let out = wonder3d(&["train", "--stage", stage, "--data", data, "--init", &weights, "--out", run, "--quiet"]);
+        let err = stderr(&out);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(err.contains("--stage") && err.contains("wonder3d_tiny") && !err.contains("batch."), "{err}");
+    }
+    assert!(!dir.path().join("run").exists(), "a refused run left its folder");
 }
 
 /// `--device wgpu` in a build without the `wgpu` feature names the feature before the model
