@@ -104,6 +104,37 @@ fn truncated_and_foreign_files_are_rejected() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A NaN or an infinity in a weights file is refused when the model loads, naming the file
+/// and the tensor (it used to surface as a NaN output pixel, or in training as a loss blamed
+/// on the learning rate).
+#[test]
+fn non_finite_weights_name_the_file_and_the_tensor() {
+    let bytes = std::fs::read(fixture("vae/diffusion_pytorch_model.safetensors")).unwrap();
+    let header_len = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + header_len]).unwrap();
+    // The first tensor in the file's order (the fixture stores f16): its first value becomes
+    // NaN, then +inf.
+    let (key, begin) = header
+        .as_object()
+        .unwrap()
+        .iter()
+        .filter(|(k, v)| *k != "__metadata__" && v["dtype"] == "F16")
+        .map(|(k, v)| (k.clone(), v["data_offsets"][0].as_u64().unwrap() as usize))
+        .min_by_key(|(_, begin)| *begin)
+        .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let config = VaeConfig::from_file(fixture("vae/config.json")).unwrap();
+    for bad in [half::f16::NAN, half::f16::INFINITY] {
+        let mut damaged = bytes.clone();
+        let at = 8 + header_len + begin;
+        damaged[at..at + 2].copy_from_slice(&bad.to_le_bytes());
+        let path = dir.path().join("damaged.safetensors");
+        std::fs::write(&path, &damaged).unwrap();
+        let m = message(Vae::load(&config, &path, &w3d_diffusion::default_device()));
+        assert!(m.contains("damaged.safetensors") && m.contains(&key) && m.contains("not finite"), "{m}");
+    }
+}
+
 #[test]
 fn configs_parse_and_unsupported_values_are_named() {
     let unet = UNetConfig::from_file(fixture("unet/config.json")).unwrap();

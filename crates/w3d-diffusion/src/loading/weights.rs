@@ -188,6 +188,8 @@ pub(crate) struct ParamSource<'a> {
     missing: Vec<String>,
     wrong: Vec<String>,
     unreadable: Vec<String>,
+    /// Tensors holding NaN or infinite values (a damaged or diverged checkpoint), by key.
+    non_finite: Vec<String>,
     names: Vec<NamedParam>,
     /// Keys a model may lack in the source, initialised fresh from this seeded state instead.
     fresh: Option<(u64, FreshKeys<'a>)>,
@@ -239,6 +241,7 @@ impl<'a> ParamSource<'a> {
             missing: Vec::new(),
             wrong: Vec::new(),
             unreadable: Vec::new(),
+            non_finite: Vec::new(),
             names: Vec::new(),
             fresh: None,
             widen_conv_in: false,
@@ -353,7 +356,16 @@ impl<'a> ParamSource<'a> {
         };
         let values = match &mut self.source {
             Source::File { file, renamed, .. } => match file.read_f32(&renamed[key]) {
-                Ok((values, _)) => values,
+                // A NaN or infinity in the weights would surface only as a NaN output pixel
+                // or a loss blamed on the learning rate; one pass over the values read names
+                // the tensor instead.
+                Ok((values, _)) => match values.iter().position(|v| !v.is_finite()) {
+                    Some(i) => {
+                        self.non_finite.push(format!("{key} ({} at index {i})", values[i]));
+                        return None;
+                    }
+                    None => values,
+                },
                 Err(e) => {
                     self.unreadable.push(format!("{key}: {e}"));
                     return None;
@@ -444,7 +456,12 @@ impl<'a> ParamSource<'a> {
                 (PathBuf::from("<source model>"), values.keys().filter(|k| !used.contains(*k)).cloned().collect())
             }
         };
-        if self.missing.is_empty() && self.wrong.is_empty() && unexpected.is_empty() && self.unreadable.is_empty() {
+        if self.missing.is_empty()
+            && self.wrong.is_empty()
+            && unexpected.is_empty()
+            && self.unreadable.is_empty()
+            && self.non_finite.is_empty()
+        {
             return Ok(());
         }
         let mut report = String::from("keys and shapes matching the model config;");
@@ -453,6 +470,7 @@ impl<'a> ParamSource<'a> {
             ("wrong shape", &self.wrong),
             ("unexpected", &unexpected),
             ("unreadable", &self.unreadable),
+            ("not finite (NaN or infinite values)", &self.non_finite),
         ] {
             if !list.is_empty() {
                 report.push_str(&format!("\n  {} {title}: {}", list.len(), list.join(", ")));
