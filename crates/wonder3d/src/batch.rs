@@ -184,6 +184,9 @@ impl Manifest {
                 continue;
             }
             let field = |what: &str| format!("{source} line {line}: {what}");
+            if trimmed.contains('\0') {
+                return Err(Error::invalid(field("input"), "a line without NUL bytes (is this a text file?)"));
+            }
             let (written, parsed) = if trimmed.starts_with('{') {
                 let parsed: ItemLine = serde_json::from_str(trimmed)
                     .map_err(|e| Error::invalid(field("JSON item"), format!("{{\"input\": PATH, …}} ({e})")))?;
@@ -658,6 +661,14 @@ impl Batch {
         check_out_folder(&options.out)?;
         let mine: Vec<&Item> =
             manifest.items.iter().enumerate().filter(|(i, _)| options.shard.owns(*i)).map(|(_, item)| item).collect();
+        // Without a model a missing input would be taken for an image and blamed on the
+        // missing model: name the path instead.
+        if !with_model && let Some(item) = mine.iter().find(|i| i.kind == InputKind::Image && !i.input.exists()) {
+            return Err(Error::invalid(
+                format!("manifest line {} input", item.line),
+                format!("an existing image file or view-set folder ({} does not exist)", item.input.display()),
+            ));
+        }
         if !with_model && let Some(item) = mine.iter().find(|i| i.kind == InputKind::Image) {
             let images = mine.iter().filter(|i| i.kind == InputKind::Image).count();
             return Err(Error::invalid(

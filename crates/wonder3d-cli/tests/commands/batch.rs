@@ -60,10 +60,23 @@ fn batch_checks_everything_before_work() {
     let manifest = dir.path().join("items.txt");
     let out = dir.path().join("out");
     let o = out.to_str().unwrap();
-    // An image item without a model, a bad JSON line, a duplicate id, a bad shard.
+    // An image item without a model, a missing input, a NUL byte, a bad JSON line, a
+    // duplicate id, a bad shard.
+    std::fs::write(dir.path().join("photo.jpg"), b"not decoded before the model check").unwrap();
     std::fs::write(&manifest, "photo.jpg\n").unwrap();
     let run = wonder3d(&["batch", manifest.to_str().unwrap(), "--out", o]);
     assert!(text(&run.stderr).contains("--weights"), "{}", text(&run.stderr));
+    std::fs::write(&manifest, "photo.jpg\nno-such-photo.jpg\n").unwrap();
+    let run = wonder3d(&["batch", manifest.to_str().unwrap(), "--out", o]);
+    let err = text(&run.stderr);
+    assert!(
+        err.contains("line 2") && err.contains("no-such-photo.jpg does not exist") && !err.contains("--weights"),
+        "{err}"
+    );
+    std::fs::write(&manifest, b"photo.jpg\nph\0to.jpg\n").unwrap();
+    let run = wonder3d(&["batch", manifest.to_str().unwrap(), "--out", o]);
+    let err = text(&run.stderr);
+    assert!(err.contains("line 2") && err.contains("NUL") && !err.contains('\0'), "{err}");
     std::fs::write(&manifest, "a.png\n{\"input\": \"b.png\", \"steps\": \"many\"}\n").unwrap();
     let run = wonder3d(&["batch", manifest.to_str().unwrap(), "--out", o]);
     assert!(text(&run.stderr).contains("line 2"), "{}", text(&run.stderr));
