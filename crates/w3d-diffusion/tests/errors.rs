@@ -135,6 +135,39 @@ fn non_finite_weights_name_the_file_and_the_tensor() {
     }
 }
 
+/// A header whose shape or offsets of one tensor do not add up names that tensor and what
+/// was expected (the format's own validation only said the header was invalid).
+#[test]
+fn damaged_headers_name_the_tensor() {
+    let bytes = std::fs::read(fixture("vae/diffusion_pytorch_model.safetensors")).unwrap();
+    let header_len = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+    let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + header_len]).unwrap();
+    let data = &bytes[8 + header_len..];
+    let key = header.as_object().unwrap().keys().find(|k| *k != "__metadata__").unwrap().clone();
+    let dir = tempfile::tempdir().unwrap();
+    let write = |header: &serde_json::Value| {
+        let text = serde_json::to_vec(header).unwrap();
+        let mut file = (text.len() as u64).to_le_bytes().to_vec();
+        file.extend(text);
+        file.extend(data);
+        let path = dir.path().join("damaged.safetensors");
+        std::fs::write(&path, file).unwrap();
+        path
+    };
+    let with_header = |header: &serde_json::Value| message(SafetensorsFile::open(write(header)));
+    let mut wrong_shape = header.clone();
+    let dim = wrong_shape[&key]["shape"][0].as_u64().unwrap();
+    wrong_shape[&key]["shape"][0] = serde_json::json!(dim + 1);
+    let m = with_header(&wrong_shape);
+    assert!(m.contains("damaged.safetensors") && m.contains(&key) && m.contains("data_offsets"), "{m}");
+    let mut wrong_dtype = header.clone();
+    wrong_dtype[&key]["dtype"] = serde_json::json!("F12");
+    let m = with_header(&wrong_dtype);
+    assert!(m.contains(&key) && m.contains("dtype"), "{m}");
+    // The untouched header, written the same way, still opens.
+    assert!(SafetensorsFile::open(write(&header)).is_ok());
+}
+
 #[test]
 fn configs_parse_and_unsupported_values_are_named() {
     let unet = UNetConfig::from_file(fixture("unet/config.json")).unwrap();
@@ -159,4 +192,20 @@ fn configs_parse_and_unsupported_values_are_named() {
         "image_size": 30, "patch_size": 6, "intermediate_size": 48, "num_hidden_layers": 2}});
     let from_full = ClipVisionConfig::from_value(full).unwrap();
     assert_eq!(from_full, clip);
+    // A value of the wrong type is named by its key, from a value and from a file.
+    let mut value: serde_json::Value = serde_json::from_str(&json).unwrap();
+    value["layers_per_block"] = serde_json::json!(1e12);
+    let m = message(UNetConfig::from_value(value.clone()));
+    assert!(m.contains("layers_per_block") && m.contains("floating point"), "{m}");
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("config.json");
+    std::fs::write(&path, serde_json::to_string(&value).unwrap()).unwrap();
+    let m = message(UNetConfig::from_file(&path));
+    assert!(m.contains("config.json") && m.contains("layers_per_block"), "{m}");
+    let vae_json = std::fs::read_to_string(fixture("vae/config.json")).unwrap();
+    let mut vae_value: serde_json::Value = serde_json::from_str(&vae_json).unwrap();
+    vae_value["block_out_channels"] = serde_json::json!([16, "wide"]);
+    std::fs::write(&path, serde_json::to_string(&vae_value).unwrap()).unwrap();
+    let m = message(VaeConfig::from_file(&path));
+    assert!(m.contains("block_out_channels[1]"), "{m}");
 }

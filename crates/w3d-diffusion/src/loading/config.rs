@@ -51,7 +51,22 @@ fn per_block_in_range(field: &str, value: &Option<PerBlock>, max: usize) -> Resu
 /// Reads and parses a JSON config file.
 fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T, Error> {
     let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
-    serde_json::from_str(&text).map_err(|e| Error::format(path, "json", format!("a valid config ({e})")))
+    let mut json = serde_json::Deserializer::from_str(&text);
+    serde_path_to_error::deserialize(&mut json).map_err(|e| {
+        let key = e.path().to_string();
+        let field = if key == "." { "json".to_string() } else { format!("json {key}") };
+        Error::format(path, field, format!("a valid config ({})", e.inner()))
+    })
+}
+
+/// `value` as the config `T`; a value of the wrong type is named by its key
+/// (`config layers_per_block: expected a valid UNet config (invalid type: …)`).
+fn parse_config<T: DeserializeOwned>(value: serde_json::Value, what: &str) -> Result<T, Error> {
+    serde_path_to_error::deserialize(value).map_err(|e| {
+        let key = e.path().to_string();
+        let field = if key == "." { "config".to_string() } else { format!("config {key}") };
+        Error::invalid(field, format!("a valid {what} ({})", e.inner()))
+    })
 }
 
 /// A value that is either one number for every block or one number per block (diffusers
@@ -352,8 +367,7 @@ impl UNetConfig {
                 }
             }
         }
-        let mut config: Self = serde_json::from_value(value)
-            .map_err(|e| Error::invalid("config", format!("a valid UNet config ({e})")))?;
+        let mut config: Self = parse_config(value, "UNet config")?;
         config.applied_overrides = applied;
         config.differs_from_authors = differs;
         config.validate()?;
@@ -648,8 +662,7 @@ impl ControlNetConfig {
 
     /// Parses and validates a ControlNet config (a JSON object as diffusers writes it).
     pub fn from_value(mut value: serde_json::Value) -> Result<Self, Error> {
-        let fields = ControlNetFields::deserialize(&value)
-            .map_err(|e| Error::invalid("config", format!("a valid ControlNet config ({e})")))?;
+        let fields: ControlNetFields = parse_config(value.clone(), "ControlNet config")?;
         let object = value.as_object_mut().ok_or_else(|| Error::invalid("config", "a JSON object"))?;
         if let Some(class) = object.get("_class_name")
             && class.as_str() != Some("ControlNetModel")
@@ -932,10 +945,7 @@ impl ClipVisionConfig {
 
     /// Parses a JSON value (see [`ClipVisionConfig::from_file`]).
     pub fn from_value(value: serde_json::Value) -> Result<Self, Error> {
-        let parse = |v: serde_json::Value| {
-            serde_json::from_value::<Self>(v)
-                .map_err(|e| Error::invalid("config", format!("a CLIP vision config ({e})")))
-        };
+        let parse = |v: serde_json::Value| parse_config::<Self>(v, "CLIP vision config");
         let config = match value.get("vision_config") {
             Some(vision) => {
                 let mut vision = vision.clone();
@@ -1070,8 +1080,7 @@ impl ClipTextConfig {
             Some(text) => text.clone(),
             None => value,
         };
-        let config = serde_json::from_value::<Self>(value)
-            .map_err(|e| Error::invalid("config", format!("a CLIP text config ({e})")))?;
+        let config = parse_config::<Self>(value, "CLIP text config")?;
         config.validate()?;
         Ok(config)
     }

@@ -48,6 +48,60 @@ pub fn find_weights(dir: &Path, stem: &str) -> Result<PathBuf, Error> {
     Err(Error::format(dir, "weights", format!("a weights file {expected}")))
 }
 
+/// The first tensor of a safetensors header that the format's own validation refused, with
+/// what was expected of it: a known dtype, a shape, two offsets, a byte length of
+/// `elements × dtype size`, each tensor starting where the previous one ended. `None` when
+/// the header is not a JSON object or every entry looks right (the error is elsewhere).
+fn culprit_tensor(header: &[u8]) -> Option<(String, String)> {
+    let value: serde_json::Value = serde_json::from_slice(header).ok()?;
+    let mut entries: Vec<(&String, &serde_json::Value)> =
+        value.as_object()?.iter().filter(|(name, _)| name.as_str() != "__metadata__").collect();
+    let offsets = |v: &serde_json::Value| -> Option<(u64, u64)> {
+        let o = v.get("data_offsets")?.as_array()?;
+        Some((o.first()?.as_u64()?, o.get(1)?.as_u64()?))
+    };
+    for (name, entry) in &entries {
+        let bad = |what: String| Some((name.to_string(), what));
+        let size = match entry.get("dtype").and_then(|d| d.as_str()) {
+            Some("F64" | "I64" | "U64") => 8,
+            Some("F32" | "I32" | "U32") => 4,
+            Some("F16" | "BF16" | "I16" | "U16") => 2,
+            Some("I8" | "U8" | "BOOL" | "F8_E4M3" | "F8_E5M2") => 1,
+            other => return bad(format!("a known dtype (found {other:?})")),
+        };
+        let Some(shape) = entry.get("shape").and_then(|s| s.as_array()) else {
+            return bad("a shape: an array of sizes".into());
+        };
+        let Some(dims) = shape.iter().map(|d| d.as_u64()).collect::<Option<Vec<u64>>>() else {
+            return bad(format!("a shape of whole sizes (found {shape:?})"));
+        };
+        let Some((begin, end)) = offsets(entry) else {
+            return bad("data_offsets: two byte offsets [begin, end]".into());
+        };
+        let elements = dims.iter().try_fold(1u64, |n, &d| n.checked_mul(d));
+        let bytes = elements.and_then(|n| n.checked_mul(size));
+        if end < begin || bytes != Some(end - begin) {
+            return bad(format!(
+                "data_offsets [{begin}, {end}] spanning shape {dims:?} × {size} bytes = {} bytes",
+                bytes.map_or("more than 2⁶⁴".to_string(), |b| b.to_string())
+            ));
+        }
+    }
+    entries.sort_by_key(|(_, entry)| offsets(entry).map_or(0, |(begin, _)| begin));
+    let mut next = 0;
+    for (name, entry) in entries {
+        let (begin, end) = offsets(entry)?;
+        if begin != next {
+            return Some((
+                name.clone(),
+                format!("data starting at byte {next}, where the previous tensor ends (found {begin})"),
+            ));
+        }
+        next = end;
+    }
+    None
+}
+
 /// Largest header accepted (the format's own limit).
 const MAX_HEADER: u64 = 100_000_000;
 
@@ -73,8 +127,10 @@ impl SafetensorsFile {
         let mut header = vec![0u8; header_len as usize];
         file.read_exact(&mut header).map_err(|e| Error::io(&path, e))?;
         // Deserializing validates the header (contiguous offsets, sizes matching shapes and dtypes).
-        let metadata: Metadata = serde_json::from_slice(&header)
-            .map_err(|e| Error::format(&path, "header", format!("a valid safetensors header ({e})")))?;
+        let metadata: Metadata = serde_json::from_slice(&header).map_err(|e| match culprit_tensor(&header) {
+            Some((name, expected)) => Error::format(&path, format!("header: tensor {name:?}"), expected),
+            None => Error::format(&path, "header", format!("a valid safetensors header ({e})")),
+        })?;
         let data_start = 8 + header_len;
         let tensors: BTreeMap<String, TensorInfo> =
             metadata.tensors().into_iter().map(|(name, info)| (name, info.clone())).collect();
