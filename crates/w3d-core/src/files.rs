@@ -66,8 +66,11 @@ pub fn replaceable_folder(dir: &Path) -> Result<bool> {
     if dir.file_name().is_none() {
         return Err(Error::invalid(field(), "a folder name (not `.`, `..` or a root)"));
     }
-    if let Some(p) = dir.parent().filter(|p| !p.as_os_str().is_empty() && !p.is_dir()) {
-        return Err(Error::invalid(field(), format!("a folder inside an existing one; create {} first", p.display())));
+    if let Some(file) = dir.parent().and_then(file_in_the_way) {
+        return Err(Error::invalid(
+            field(),
+            format!("a folder whose missing parents can be created, but {} is a file", file.display()),
+        ));
     }
     match std::fs::symlink_metadata(dir) {
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(false),
@@ -77,16 +80,34 @@ pub fn replaceable_folder(dir: &Path) -> Result<bool> {
     }
 }
 
+/// The nearest existing ancestor of `dir` (itself included) when it is not a folder: what
+/// would keep `create_dir_all(dir)` from creating the missing folders. `None` when every
+/// missing folder can be created under an existing one (or `dir` exists as a folder).
+pub fn file_in_the_way(dir: &Path) -> Option<PathBuf> {
+    for ancestor in dir.ancestors().filter(|a| !a.as_os_str().is_empty()) {
+        match std::fs::metadata(ancestor) {
+            Ok(m) if m.is_dir() => return None,
+            Ok(_) => return Some(ancestor.to_path_buf()),
+            Err(_) => continue,
+        }
+    }
+    None
+}
+
 /// Writes a folder atomically: `fill` writes the folder's files into a fresh staging folder
 /// beside `dir` (`.<name>.partial-<pid>-<n>`), which then replaces `dir` as a whole (an
 /// existing `dir` is moved aside first and deleted only once the new one is in place). On
 /// any error the staging folder is removed and `dir` is left as it was, so a reader never
-/// sees a folder mixing two writes. The caller decides whether `dir` may be replaced; a
-/// file at `dir` (or a missing parent) is refused before `fill` runs, see
+/// sees a folder mixing two writes. Missing parent folders are created first (as `mkdir -p`
+/// would; the atomic switch happens in the last one). The caller decides whether `dir` may be
+/// replaced; a file at `dir` or in the way of its parents is refused before `fill` runs, see
 /// [`replaceable_folder`].
 pub fn write_dir_atomic(dir: impl AsRef<Path>, fill: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
     let dir = dir.as_ref();
     replaceable_folder(dir)?;
+    if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+    }
     let staging = sibling(dir, "partial")?;
     let written = std::fs::create_dir(&staging).map_err(|e| Error::io(&staging, e)).and_then(|()| fill(&staging));
     if let Err(e) = written {

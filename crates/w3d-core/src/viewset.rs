@@ -230,7 +230,8 @@ impl ViewSet {
     }
 
     /// Fails unless `dir` can receive a view set from [`ViewSet::save`] without losing
-    /// anything: not a file, its parent an existing folder, and, if `dir` exists, a folder
+    /// anything: not a file, no file in the way of its missing parents (the save creates them),
+    /// and, if `dir` exists, a folder
     /// holding only view-set files (`cameras.json`, `normal_*.png|exr`, `colour_*.png`,
     /// `mask_*.png`, `depth_*.exr`, `input.png`, `views.png`), which the new set replaces.
     /// Commands call it before any long work.

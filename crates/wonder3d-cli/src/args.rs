@@ -92,6 +92,20 @@ pub enum SchedulerArg {
     Unipc,
 }
 
+/// The mesh at `path`, refused unless it has a surface: `role` names it in the error (`PRED`,
+/// `MESH`, `--enhancer oracle:`), so a command reading two meshes says which one is at fault
+/// (a mesh whose triangles all have zero area renders as nothing and has no distance).
+pub fn load_mesh_with_area(path: &std::path::Path, role: &str) -> wonder3d::Result<wonder3d::Mesh> {
+    let mesh = wonder3d::load_mesh(path)?;
+    if mesh.surface_area().partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        return Err(wonder3d::Error::invalid(
+            format!("{role} {}", path.display()),
+            "a mesh with a surface (its triangles all have zero area)",
+        ));
+    }
+    Ok(mesh)
+}
+
 /// Orients a closed mesh read from `path` outward ([`wonder3d::Mesh::orient_outward`]),
 /// with a note on stderr when it was wound inward: normals, masks, texture visibility and
 /// volume IoU all assume outward triangles.

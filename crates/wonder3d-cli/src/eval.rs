@@ -9,7 +9,7 @@ use wonder3d::eval::{
     EvalOptions, IcpOptions, MeshMetrics, Similarity, VisibleOptions, align_icp_scale, evaluate,
     visible_surface_chamfer,
 };
-use wonder3d::{Mesh, Result, load_mesh};
+use wonder3d::{Mesh, Result};
 
 /// Arguments of `wonder3d eval`.
 #[derive(clap::Args)]
@@ -88,8 +88,8 @@ impl Report {
 
 /// Runs `wonder3d eval`.
 pub fn run(args: &EvalArgs) -> Result<()> {
-    let mut pred = load_mesh(&args.pred)?;
-    let mut gt = load_mesh(&args.gt)?;
+    let mut pred = crate::args::load_mesh_with_area(&args.pred, "PRED")?;
+    let mut gt = crate::args::load_mesh_with_area(&args.gt, "GT")?;
     crate::args::orient_outward(&mut pred, &args.pred);
     crate::args::orient_outward(&mut gt, &args.gt);
     // The frames `evaluate` compares in, needed as well by the visible Chamfer and ICP.

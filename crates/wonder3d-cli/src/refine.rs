@@ -9,7 +9,7 @@ use wonder3d::outputs::{check_distinct, check_outputs, mesh_output_files};
 use wonder3d::refine::{
     Enhancer, IdentityEnhancer, OracleEnhancer, RefineOptions, RefineProgress, RefineStep, Refined, refine,
 };
-use wonder3d::{Error, Mesh, Result, TextureOptions, ViewSet, load_mesh, save_mesh};
+use wonder3d::{Error, Mesh, Result, TextureOptions, ViewSet, save_mesh};
 
 use crate::progress;
 
@@ -102,7 +102,7 @@ pub fn run(args: &RefineArgs) -> Result<()> {
     if let Some(crate::args::Simplify(tolerance)) = args.simplify {
         options = options.clone().with_mesh(options.mesh.with_simplify_tolerance(tolerance));
     }
-    let mut geometry = load_mesh(&args.mesh)?.without_attributes();
+    let mut geometry = crate::args::load_mesh_with_area(&args.mesh, "MESH")?.without_attributes();
     // Refinement fits a closed surface to the enhanced views; an open or torn mesh would be
     // "refined" into something the views never showed.
     if !geometry.merge_by_position().0.topology().is_watertight() {
@@ -115,14 +115,8 @@ pub fn run(args: &RefineArgs) -> Result<()> {
     let enhancer: Box<dyn Enhancer> = match &args.enhancer {
         EnhancerArg::Identity => Box::new(IdentityEnhancer),
         EnhancerArg::Oracle(path) => {
-            let mut truth = load_mesh(path)?;
             // Renders of a mesh without area are empty: every view would say "nothing here".
-            if truth.surface_area().partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
-                return Err(Error::invalid(
-                    format!("--enhancer oracle:{}", path.display()),
-                    "a mesh with a surface (its triangles all have zero area)",
-                ));
-            }
+            let mut truth = crate::args::load_mesh_with_area(path, "--enhancer oracle:")?;
             crate::args::orient_outward(&mut truth, path);
             if !args.no_normalize {
                 truth.normalize_unit_cube();

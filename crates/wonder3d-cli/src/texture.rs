@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use wonder3d::outputs::{check_distinct, check_mesh_output, mesh_output_files};
 use wonder3d::texture::{bake_with_progress, fuse_vertex_colours};
-use wonder3d::{Progress, Result, Stage, TextureOptions, ViewSet, load_mesh, save_mesh};
+use wonder3d::{Progress, Result, Stage, TextureOptions, ViewSet, save_mesh};
 
 use crate::progress;
 
@@ -58,7 +58,7 @@ pub fn run(args: &TextureArgs) -> Result<()> {
         .with_dilation(args.dilation)
         .with_view_weight_exponent(args.exponent);
     options.validate()?;
-    let mut mesh = load_mesh(&args.mesh)?.without_attributes();
+    let mut mesh = crate::args::load_mesh_with_area(&args.mesh, "MESH")?.without_attributes();
     crate::args::orient_outward(&mut mesh, &args.mesh);
     if args.normalize {
         mesh.normalize_unit_cube();

@@ -53,25 +53,25 @@ pub fn check_parent(path: &Path) -> Result<()> {
 }
 
 /// Fails unless `dir` can receive a view-set folder (`wonder3d render`, `generate`, `run
-/// --views`): see [`ViewSet::check_output_dir`] (a new folder in an existing one, or an
-/// earlier view-set folder, which the new set replaces as a whole).
+/// --views`): see [`ViewSet::check_output_dir`] (a new folder, its missing parents created
+/// when it is written, or an earlier view-set folder, which the new set replaces as a whole).
 pub fn check_out_dir(dir: impl AsRef<Path>) -> Result<()> {
     ViewSet::check_output_dir(dir)
 }
 
-/// Fails unless `dir` can hold named output files (created if missing, like the demo's
-/// folder): not a file, and its parent an existing folder.
+/// Fails unless `dir` can hold named output files (created if missing, with any missing
+/// parents, like `mkdir -p`): not a file, and no file in the way of its parents.
 pub fn check_out_folder(dir: impl AsRef<Path>) -> Result<()> {
     let dir = dir.as_ref();
     if dir.exists() && !dir.is_dir() {
         return Err(Error::invalid(format!("output folder {}", dir.display()), "a folder, but it is a file"));
     }
-    match dir.parent() {
-        Some(p) if !p.as_os_str().is_empty() && !p.is_dir() => Err(Error::invalid(
+    match dir.parent().and_then(w3d_core::io::file_in_the_way) {
+        Some(file) => Err(Error::invalid(
             format!("output folder {}", dir.display()),
-            format!("a folder inside an existing one; create {} first", p.display()),
+            format!("a folder whose missing parents can be created, but {} is a file", file.display()),
         )),
-        _ => Ok(()),
+        None => Ok(()),
     }
 }
 
@@ -166,7 +166,10 @@ mod tests {
         let file = dir.path().join("file");
         std::fs::write(&file, "x").unwrap();
         assert!(check_out_folder(&file).unwrap_err().to_string().contains("it is a file"));
-        assert!(check_out_folder(dir.path().join("a/b")).unwrap_err().to_string().contains("create"));
+        // Missing parents are fine (created when the folder is); a file in their way is not.
+        check_out_folder(dir.path().join("a/b")).unwrap();
+        let err = check_out_folder(file.join("a/b")).unwrap_err().to_string();
+        assert!(err.contains("file is a file"), "{err}");
     }
 
     #[test]

@@ -329,7 +329,12 @@ fn saving_views_never_deletes_other_files() {
     assert_eq!(std::fs::read(&notes).unwrap(), b"mine");
     let file = write(dir.path(), "file", b"x");
     assert!(set.save(&file).unwrap_err().to_string().contains("it is a file"));
-    assert!(set.save(dir.path().join("no/such/dir")).unwrap_err().to_string().contains("create"));
+    // Missing parents are created (as `mkdir -p`); a file in their way is named.
+    let nested = dir.path().join("new/parents/views");
+    set.save(&nested).unwrap();
+    assert_eq!(ViewSet::load(&nested).unwrap().rig(), set.rig());
+    let msg = set.save(file.join("views")).unwrap_err().to_string();
+    assert!(msg.contains("is a file") && msg.contains(&*file.to_string_lossy()), "{msg}");
 }
 
 #[test]

@@ -119,15 +119,15 @@ fn dataset_refuses_bad_input_before_any_rendering() {
     assert!(err.contains("both"), "{err}");
     let err = fails(&["dataset", "--out", s(&out)]);
     assert!(err.contains("MESHES"), "{err}");
-    // Outputs: a file, a folder of other files, a missing parent.
+    // Outputs: a file, a folder of other files, a file in the way of missing parents.
     let file = dir.path().join("file.txt");
     std::fs::write(&file, "mine").unwrap();
     let err = fails(&["dataset", &torus, "--out", s(&file)]);
     assert!(err.contains("it is a file"), "{err}");
     let err = fails(&["dataset", &torus, "--out", s(dir.path())]);
     assert!(err.contains("earlier dataset"), "{err}");
-    let err = fails(&["dataset", &torus, "--out", s(&dir.path().join("no/train"))]);
-    assert!(err.contains("create"), "{err}");
+    let err = fails(&["dataset", &torus, "--out", s(&file.join("train"))]);
+    assert!(err.contains("file.txt is a file"), "{err}");
     assert_eq!(std::fs::read_to_string(&file).unwrap(), "mine");
     assert_eq!(names(dir.path()), ["corrupt.obj", "file.txt", "flat.obj"]);
 }

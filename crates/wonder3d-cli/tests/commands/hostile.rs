@@ -204,6 +204,27 @@ fn negative_numbers_of_the_newer_commands_get_a_range_error() {
     assert!(!dir.path().join("out").exists() && !dir.path().join("out.glb").exists());
 }
 
+/// A mesh whose triangles have no area is named, with its role, by every command that reads
+/// two inputs (it used to be "mesh surface area: expected a positive area", whichever it was).
+#[test]
+fn a_mesh_without_area_is_named_with_its_role() {
+    let dir = tempfile::tempdir().unwrap();
+    let flat = dir.path().join("flat.obj");
+    std::fs::write(&flat, "v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n").unwrap();
+    let torus = asset("torus.obj");
+    let f = s(&flat);
+    let err = fails_within(5, &["eval", f, &torus]);
+    assert!(err.contains("PRED") && err.contains("flat.obj") && err.contains("zero area"), "{err}");
+    let err = fails_within(5, &["eval", &torus, f]);
+    assert!(err.contains("GT") && err.contains("flat.obj"), "{err}");
+    let views = dir.path().join("views");
+    render_torus(&views);
+    let out = dir.path().join("t.glb");
+    let err = fails_within(5, &["texture", f, s(&views), "--out", s(&out)]);
+    assert!(err.contains("MESH") && err.contains("flat.obj") && err.contains("zero area"), "{err}");
+    assert!(!out.exists());
+}
+
 #[test]
 fn outputs_are_checked_before_any_work() {
     let dir = tempfile::tempdir().unwrap();

@@ -52,6 +52,20 @@ fn render_rejects_an_unknown_rig() {
     assert!(String::from_utf8_lossy(&run.stderr).contains("wonder3d-ortho"));
 }
 
+/// `render --out a/b/c` creates the missing `a/b` (as `mkdir -p`; scripts expect it), and the
+/// view set lands whole in `c`.
+#[test]
+fn render_creates_missing_parent_folders() {
+    let dir = tempfile::tempdir().unwrap();
+    let torus = assets().join("torus.obj");
+    let out = dir.path().join("a/b/views");
+    let run = wonder3d(&["render", torus.to_str().unwrap(), "--size", "32", "--out", out.to_str().unwrap()]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    assert!(wonder3d::ViewSet::load(&out).is_ok());
+    let names: Vec<_> = std::fs::read_dir(dir.path().join("a/b")).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(names, ["views"], "no staging folder left beside the views");
+}
+
 #[test]
 fn eval_of_a_mesh_against_itself_is_at_the_sampling_floor() {
     let torus = assets().join("torus.obj");

@@ -214,7 +214,7 @@ fn bad_input_is_refused_before_anything_is_written() {
     assert!(err(std::slice::from_ref(&torus), options().with_samples(0)).contains("1 to 10000"));
     assert!(err(&[], options()).contains("at least one mesh"));
 
-    // Outputs: a file, a folder with other files, a missing parent.
+    // Outputs: a file, a folder with other files, a file in the way of missing parents.
     let dataset = Dataset::prepare(std::slice::from_ref(&torus), &options().with_samples(1)).unwrap();
     let file = dir.path().join("file");
     std::fs::write(&file, b"keep").unwrap();
@@ -222,7 +222,7 @@ fn bad_input_is_refused_before_anything_is_written() {
     std::fs::create_dir(&foreign).unwrap();
     std::fs::write(foreign.join("notes.txt"), b"keep").unwrap();
     for (out, expected) in
-        [(file.clone(), "it is a file"), (foreign.clone(), "notes.txt"), (dir.path().join("no/such/dir"), "create")]
+        [(file.clone(), "it is a file"), (foreign.clone(), "notes.txt"), (file.join("sub/dir"), "is a file")]
     {
         let e = check_dataset_dir(&out).unwrap_err().to_string();
         assert!(e.contains(expected), "{}: {e}", out.display());
