@@ -12,7 +12,7 @@
 //!
 //! | layer | what |
 //! |---|---|
-//! | [`train`] (feature `train`) | objective, AdamW, EMA, checkpoints, training sets, VAE fine-tuning |
+//! | `train` (feature `train`) | objective, AdamW, EMA, checkpoints, training sets, VAE fine-tuning |
 //! | [`pipelines`] | guidance and noise, image → views ([`pipelines::multiview`]), the enhancer ([`pipelines::enhancer`]) |
 //! | [`schedulers`] | DDIM and its inversion, DPM-Solver++(2M), UniPC, the schedule they share |
 //! | [`models`] | UNet and its blocks, VAE, CLIP, ControlNet, IP-Adapter |
