@@ -138,6 +138,7 @@ mod with_model {
     /// Runs `wonder3d generate`.
     pub fn run(args: &GenerateArgs) -> Result<()> {
         wonder3d::outputs::check_out_dir(&args.out)?;
+        wonder3d::outputs::check_inputs_outside(("--out", &args.out), &[("IMAGE", &args.image)])?;
         // Read and prepare the image before loading the weights: a refused photo fails fast.
         let prepared = wonder3d::prepare_image(&args.image, &args.model.sampling.prepare_options()?)?;
         if !args.quiet {

@@ -31,6 +31,7 @@ pub struct RenderArgs {
 /// `cameras.json` in the view-set folder layout.
 pub fn run(args: &RenderArgs) -> Result<()> {
     check_out_dir(&args.out)?;
+    wonder3d::outputs::check_inputs_outside(("--out", &args.out), &[("MESH", &args.mesh)])?;
     let rig = args.rig.rig();
     let mut mesh = load_mesh(&args.mesh)?;
     crate::args::orient_outward(&mut mesh, &args.mesh);

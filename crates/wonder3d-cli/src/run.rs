@@ -55,6 +55,9 @@ pub fn run(args: &RunArgs) -> Result<()> {
     use crate::{generate, progress};
 
     check_outputs(&args.out, args.report.as_deref(), args.views.as_deref())?;
+    if let Some(views) = &args.views {
+        wonder3d::outputs::check_inputs_outside(("--views", views), &[("IMAGE", &args.image)])?;
+    }
     let texture = TextureOptions::default().with_size(args.texture_size);
     texture.validate()?;
     let iterations = args.refinement.check()?;

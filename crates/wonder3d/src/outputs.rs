@@ -139,6 +139,28 @@ pub fn check_distinct(outputs: &[(&str, &Path)], inputs: &[(&str, &Path)]) -> Re
     Ok(())
 }
 
+/// Fails when one of `inputs` lies inside `folder`, an output folder that is replaced as a
+/// whole (a view-set folder): the input would be deleted with the folder's old contents, or
+/// replaced by an output of the same name. `(name, path)` as in [`check_distinct`].
+pub fn check_inputs_outside(folder: (&str, &Path), inputs: &[(&str, &Path)]) -> Result<()> {
+    let (flag, folder) = folder;
+    let resolved = |p: &Path| std::fs::canonicalize(p).unwrap_or_else(|_| std::path::absolute(p).unwrap_or_default());
+    let dir = resolved(folder);
+    for &(input, path) in inputs {
+        if resolved(path).starts_with(&dir) {
+            return Err(Error::invalid(
+                flag,
+                format!(
+                    "a folder that does not hold the {input} input ({} is replaced as a whole, {} with it)",
+                    folder.display(),
+                    path.display()
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Fails unless `path` can take a PNG: a `.png` name in an existing folder. Call it before
 /// the work.
 pub fn check_png_output(path: impl AsRef<Path>) -> Result<()> {

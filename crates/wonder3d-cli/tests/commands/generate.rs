@@ -110,6 +110,27 @@ fn generate_names_what_is_wrong() {
     assert!(!run.status.success());
     let err = String::from_utf8_lossy(&run.stderr);
     assert!(err.contains("ortho, persp"), "{err}");
+    // An input inside the folder that the views replace as a whole is refused before any work
+    // (it would be deleted with the folder's old contents).
+    let views = dir.path().join("rendered");
+    let spot = concat!(env!("CARGO_MANIFEST_DIR"), "/../../assets/spot.obj");
+    let run = wonder3d(&["render", spot, "--size", "32", "--out", views.to_str().unwrap()]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let before = std::fs::read(views.join("cameras.json")).unwrap();
+    let input = views.join("colour_front.png");
+    let (i, v, w) = (input.to_str().unwrap(), views.to_str().unwrap(), tiny_weights());
+    let glb = dir.path().join("m.glb");
+    for args in [
+        vec!["generate", i, "--weights", &w, "--out", v],
+        vec!["run", i, "--weights", &w, "--out", glb.to_str().unwrap(), "--views", v],
+    ] {
+        let run = wonder3d(&args);
+        assert_eq!(run.status.code(), Some(1), "{args:?}");
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert!(err.contains("IMAGE input") && err.contains("colour_front.png"), "{args:?}: {err}");
+    }
+    assert!(std::fs::read(views.join("cameras.json")).unwrap() == before, "the views are untouched");
+    assert!(!glb.exists());
 }
 
 #[test]
