@@ -92,20 +92,6 @@ pub enum SchedulerArg {
     Unipc,
 }
 
-/// The mesh at `path`, refused unless it has a surface: `role` names it in the error (`PRED`,
-/// `MESH`, `--enhancer oracle:`), so a command reading two meshes says which one is at fault
-/// (a mesh whose triangles all have zero area renders as nothing and has no distance).
-pub fn load_mesh_with_area(path: &std::path::Path, role: &str) -> wonder3d::Result<wonder3d::Mesh> {
-    let mesh = wonder3d::load_mesh(path)?;
-    if mesh.surface_area().partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
-        return Err(wonder3d::Error::invalid(
-            format!("{role} {}", path.display()),
-            "a mesh with a surface (its triangles all have zero area)",
-        ));
-    }
-    Ok(mesh)
-}
-
 /// Orients a closed mesh read from `path` outward ([`wonder3d::Mesh::orient_outward`]),
 /// with a note on stderr when it was wound inward: normals, masks, texture visibility and
 /// volume IoU all assume outward triangles.
@@ -131,7 +117,7 @@ pub const MAX_EVAL_SAMPLES: usize = 10_000_000;
 /// A whole number in `lo..=hi`, read as a signed value so that `-1` gets this range
 /// message rather than clap's "unexpected argument" (whose `-- -1` tip cannot work for an
 /// option value).
-pub(crate) fn whole_in<T: TryFrom<i128>>(s: &str, lo: i128, hi: i128, unit: &str) -> Result<T, String> {
+fn whole_in<T: TryFrom<i128>>(s: &str, lo: i128, hi: i128, unit: &str) -> Result<T, String> {
     let range = || format!("a whole number from {lo} to {hi}{unit}");
     let v: i128 = s.trim().parse().map_err(|_| format!("expected {}, got {s:?}", range()))?;
     if v < lo || v > hi {
@@ -141,7 +127,7 @@ pub(crate) fn whole_in<T: TryFrom<i128>>(s: &str, lo: i128, hi: i128, unit: &str
 }
 
 /// A finite number in `lo..=hi` (NaN and infinities refused).
-pub(crate) fn finite_in(s: &str, lo: f64, hi: f64, what: &str) -> Result<f64, String> {
+fn finite_in(s: &str, lo: f64, hi: f64, what: &str) -> Result<f64, String> {
     let v: f64 = s.trim().parse().map_err(|_| format!("expected {what} from {lo} to {hi}, got {s:?}"))?;
     if !v.is_finite() || v < lo || v > hi {
         return Err(format!("expected {what} from {lo} to {hi}, got {s}"));
@@ -179,6 +165,21 @@ pub fn texels(s: &str) -> Result<u32, String> {
 /// `--samples` of `wonder3d eval`: 1 to [`MAX_EVAL_SAMPLES`].
 pub fn eval_samples(s: &str) -> Result<usize, String> {
     whole_in(s, 1, MAX_EVAL_SAMPLES as i128, " surface samples")
+}
+
+/// `prepare --size`: 16 to 8192 pixels.
+pub fn prepared_size(s: &str) -> Result<u32, String> {
+    whole_in(s, 16, 8192, " pixels")
+}
+
+/// `prepare --min-confidence`: a confidence in [0, 1].
+pub fn confidence(s: &str) -> Result<f32, String> {
+    finite_in(s, 0.0, 1.0, "a confidence").map(|c| c as f32)
+}
+
+/// `batch --jobs`: 1 to 256 items at once.
+pub fn jobs(s: &str) -> Result<u16, String> {
+    whole_in(s, 1, 256, " items at once")
 }
 
 /// A seed: 0 to 2⁶⁴ − 1.

@@ -32,7 +32,7 @@ pub struct BatchArgs {
     #[arg(long)]
     resume: bool,
     /// Items at once in this process (reconstruction overlaps; generation is one at a time).
-    #[arg(long, default_value_t = 1, allow_hyphen_values = true, value_parser = jobs)]
+    #[arg(long, default_value_t = 1, allow_hyphen_values = true, value_parser = crate::args::jobs)]
     jobs: u16,
     /// Give up an item after this many seconds (checked at every optimisation or sampling step).
     #[arg(long, allow_hyphen_values = true, value_parser = seconds)]
@@ -62,11 +62,6 @@ pub struct BatchArgs {
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
-}
-
-/// `--jobs`: 1 to 256 items at once.
-fn jobs(s: &str) -> std::result::Result<u16, String> {
-    crate::args::whole_in(s, 1, 256, " items at once")
 }
 
 fn shard(s: &str) -> std::result::Result<Shard, String> {

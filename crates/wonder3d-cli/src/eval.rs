@@ -88,8 +88,8 @@ impl Report {
 
 /// Runs `wonder3d eval`.
 pub fn run(args: &EvalArgs) -> Result<()> {
-    let mut pred = crate::args::load_mesh_with_area(&args.pred, "PRED")?;
-    let mut gt = crate::args::load_mesh_with_area(&args.gt, "GT")?;
+    let mut pred = wonder3d::load_mesh_with_surface(&args.pred, "PRED")?;
+    let mut gt = wonder3d::load_mesh_with_surface(&args.gt, "GT")?;
     crate::args::orient_outward(&mut pred, &args.pred);
     crate::args::orient_outward(&mut gt, &args.gt);
     // The frames `evaluate` compares in, needed as well by the visible Chamfer and ICP.

@@ -25,24 +25,14 @@ pub struct PrepareArgs {
     #[arg(long)]
     pub mask_out: Option<PathBuf>,
     /// Side of the square output in pixels (the object's longest side is 75 % of it).
-    #[arg(long, default_value_t = 512, allow_hyphen_values = true, value_parser = size)]
+    #[arg(long, default_value_t = 512, allow_hyphen_values = true, value_parser = crate::args::prepared_size)]
     pub size: u32,
     /// Refuse automatic masks less confident than this, in [0, 1] (0 accepts every mask).
-    #[arg(long, default_value_t = 0.5, allow_hyphen_values = true, value_parser = min_confidence)]
+    #[arg(long, default_value_t = 0.5, allow_hyphen_values = true, value_parser = crate::args::confidence)]
     pub min_confidence: f32,
     /// Print the result as one JSON object.
     #[arg(long)]
     pub json: bool,
-}
-
-/// `--size`: 16 to 8192 pixels.
-fn size(s: &str) -> std::result::Result<u32, String> {
-    crate::args::whole_in(s, 16, 8192, " pixels")
-}
-
-/// `--min-confidence`: a confidence in [0, 1].
-fn min_confidence(s: &str) -> std::result::Result<f32, String> {
-    crate::args::finite_in(s, 0.0, 1.0, "a confidence").map(|c| c as f32)
 }
 
 /// One line on what the preparation did: where the mask came from and how far to trust it.

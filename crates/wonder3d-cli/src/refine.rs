@@ -102,7 +102,7 @@ pub fn run(args: &RefineArgs) -> Result<()> {
     if let Some(crate::args::Simplify(tolerance)) = args.simplify {
         options = options.clone().with_mesh(options.mesh.with_simplify_tolerance(tolerance));
     }
-    let mut geometry = crate::args::load_mesh_with_area(&args.mesh, "MESH")?.without_attributes();
+    let mut geometry = wonder3d::load_mesh_with_surface(&args.mesh, "MESH")?.without_attributes();
     // Refinement fits a closed surface to the enhanced views; an open or torn mesh would be
     // "refined" into something the views never showed.
     if !geometry.merge_by_position().0.topology().is_watertight() {
@@ -116,7 +116,7 @@ pub fn run(args: &RefineArgs) -> Result<()> {
         EnhancerArg::Identity => Box::new(IdentityEnhancer),
         EnhancerArg::Oracle(path) => {
             // Renders of a mesh without area are empty: every view would say "nothing here".
-            let mut truth = crate::args::load_mesh_with_area(path, "--enhancer oracle:")?;
+            let mut truth = wonder3d::load_mesh_with_surface(path, "--enhancer oracle:")?;
             crate::args::orient_outward(&mut truth, path);
             if !args.no_normalize {
                 truth.normalize_unit_cube();

@@ -58,7 +58,7 @@ pub fn run(args: &TextureArgs) -> Result<()> {
         .with_dilation(args.dilation)
         .with_view_weight_exponent(args.exponent);
     options.validate()?;
-    let mut mesh = crate::args::load_mesh_with_area(&args.mesh, "MESH")?.without_attributes();
+    let mut mesh = wonder3d::load_mesh_with_surface(&args.mesh, "MESH")?.without_attributes();
     crate::args::orient_outward(&mut mesh, &args.mesh);
     if args.normalize {
         mesh.normalize_unit_cube();

@@ -394,14 +394,8 @@ impl DatasetObject {
                 "a file name with letters or digits (it names the samples)",
             ));
         }
-        let mut mesh = w3d_core::load_mesh(path)?;
         // A mesh without area renders as empty masks: samples a trainer cannot use.
-        if mesh.surface_area().partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
-            return Err(Error::invalid(
-                format!("mesh {}", path.display()),
-                "a mesh with a surface (its triangles all have zero area, so every view would be empty)",
-            ));
-        }
+        let mut mesh = crate::input::load_mesh_with_surface(path, "mesh")?;
         let flipped_outward = mesh.orient_outward();
         mesh.normalize_unit_cube();
         // The renderer computes normals from the geometry; stored ones would go stale under

@@ -1,10 +1,10 @@
-//! Input images: reading a photo or an RGBA image from a file and preparing it for the
-//! model (background removal when there is no alpha, the authors' framing) with the
-//! `w3d-photo` crate.
+//! Inputs: reading a photo or an RGBA image from a file and preparing it for the model
+//! (background removal when there is no alpha, the authors' framing) with the `w3d-photo`
+//! crate; reading a mesh that must have a surface.
 
 use std::path::Path;
 
-use w3d_core::{Image, Result};
+use w3d_core::{Error, Image, Mesh, Result};
 use w3d_photo::{PrepareOptions, Prepared};
 
 /// Reads an image file (PNG, JPEG or WebP, recognised from its bytes; EXIF orientation
@@ -16,4 +16,20 @@ pub fn prepare_image(path: impl AsRef<Path>, options: &PrepareOptions) -> Result
     let path = path.as_ref();
     let image = Image::read(path)?;
     w3d_photo::prepare(&image, options).map_err(|e| e.in_file(path))
+}
+
+/// The mesh at `path`, refused unless it has a surface: a mesh whose triangles all have zero
+/// area renders as empty views and has no distance to anything. `role` names it in the error
+/// (`PRED`, `MESH`, `--enhancer oracle:`, `mesh`), so a command reading several meshes says
+/// which one is at fault.
+pub fn load_mesh_with_surface(path: impl AsRef<Path>, role: &str) -> Result<Mesh> {
+    let path = path.as_ref();
+    let mesh = w3d_core::load_mesh(path)?;
+    if mesh.surface_area().partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        return Err(Error::invalid(
+            format!("{role} {}", path.display()),
+            "a mesh with a surface (its triangles all have zero area)",
+        ));
+    }
+    Ok(mesh)
 }
