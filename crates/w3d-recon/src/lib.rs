@@ -61,8 +61,8 @@ pub use coarse::{
 };
 pub use init::{InitChoice, InitOptions, InitReport, initial_mesh, visual_hull_mesh};
 pub use pipeline::{
-    COARSE_RESEEDS, CRUMPLED_MIN_PAIRS, CRUMPLED_PAIRS_PER_TRIANGLE, Preset, Progress, ReconOptions, ReconReport,
-    Stage, StageTiming, reconstruct,
+    COARSE_RESEEDS, CRUMPLED_MIN_PAIRS, CRUMPLED_PAIRS_PER_TRIANGLE, HOPELESS_VIEW_LOSS, Preset, Progress,
+    ReconOptions, ReconReport, Stage, StageTiming, reconstruct,
 };
 
 pub use polish::{PolishReport, polish};

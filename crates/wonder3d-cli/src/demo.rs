@@ -37,7 +37,8 @@ pub struct DemoArgs {
     #[arg(long, requires = "from_image")]
     weights: Option<PathBuf>,
     /// With --from-image: reconstructions tried from the generated views, each with its own remesher
-    /// seed; the one that fits the views best is kept (docs/accuracy.md, "Several starts").
+    /// seed; the one that fits the views best is kept (docs/accuracy.md, "Several starts"); one only when the
+    /// first fit shows views no closed surface explains.
     #[arg(long, default_value_t = wonder3d::GENERATED_VIEW_STARTS, allow_hyphen_values = true, value_parser = crate::args::starts)]
     starts: usize,
     #[command(flatten)]

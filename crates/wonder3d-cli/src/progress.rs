@@ -32,10 +32,16 @@ pub fn follow(bar: &ProgressBar) -> impl FnMut(Progress) + '_ {
     }
 }
 
-/// ` (fit k of n kept)` when the reconstruction tried several fits (`--starts`), else nothing.
+/// ` (fit k of n kept)` when the reconstruction tried several fits (`--starts`), why it
+/// stopped after one when it skipped the others, else nothing.
 pub fn starts_note(report: &wonder3d::recon::ReconReport) -> String {
-    match report.start_losses.len() {
-        0 | 1 => String::new(),
-        n => format!(" (fit {} of {n} kept, the best fit to the views)", report.start_kept + 1),
+    match (report.start_losses.len(), report.starts_skipped) {
+        (n, skipped @ 1..) => format!(
+            " (1 fit of {}: the views disagree beyond what any closed surface explains, so the other {skipped} \
+             were skipped)",
+            n + skipped
+        ),
+        (0 | 1, _) => String::new(),
+        (n, _) => format!(" (fit {} of {n} kept, the best fit to the views)", report.start_kept + 1),
     }
 }

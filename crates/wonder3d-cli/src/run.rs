@@ -28,7 +28,8 @@ pub struct RunArgs {
     preset: PresetArg,
     /// Reconstructions tried from the generated views, each with its own remesher seed; the
     /// one that fits the views best is kept (generated views disagree, so one fit is a
-    /// lottery: docs/accuracy.md, "Several starts").
+    /// lottery: docs/accuracy.md, "Several starts"); one only when the
+    /// first fit shows views no closed surface explains.
     #[arg(long, default_value_t = wonder3d::GENERATED_VIEW_STARTS, allow_hyphen_values = true, value_parser = crate::args::starts)]
     starts: usize,
     /// Side of the baked texture in texels.

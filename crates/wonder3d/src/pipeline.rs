@@ -104,7 +104,8 @@ impl Output {
 /// fit of four by final view loss averaged 0.023 (worst 0.028); on the hammer, the boot and
 /// the wingnut the mean fell by 31–37 % and the worst case by 38–56 % (`docs/accuracy.md`,
 /// "Several starts"). Four fits cost 2.7–4 times one fit's seconds, small beside generating
-/// the views.
+/// the views. Views no closed surface explains (a failed generation, an untrained model)
+/// get one fit all the same ([`ReconOptions::hopeless_view_loss`]).
 pub const GENERATED_VIEW_STARTS: usize = 4;
 
 /// Refuses 0 fits of generated views before any long work: [`w3d_recon::reconstruct`] refuses

@@ -91,7 +91,8 @@ fn several_starts_keep_the_best_fit() {
     assert!(error.contains("starts"), "{error}");
 
     let (mesh, report) = reconstruct(&views, &fast.with_starts(3), &mut |_| {}).unwrap();
-    assert_eq!(report.start_losses.len(), 3);
+    // One view of another object: the views disagree, yet far less than noise does.
+    assert_eq!((report.start_losses.len(), report.starts_skipped), (3, 0));
     eprintln!("losses {:?}, kept {}", report.start_losses, report.start_kept);
     assert!(report.start_losses.iter().any(|&l| l != report.start_losses[0]), "the seeds changed nothing");
     let best = report.start_losses.iter().cloned().fold(f32::INFINITY, f32::min);
@@ -107,5 +108,50 @@ fn several_starts_keep_the_best_fit() {
             assert_eq!(alone.positions(), mesh.positions());
             assert_eq!(alone.triangles(), mesh.triangles());
         }
+    }
+}
+
+/// Views no closed surface explains (noise for normals and masks, as a model with random
+/// weights generates) get one fit however many starts were asked for: the others would
+/// only choose among equally wrong meshes (`ReconOptions::hopeless_view_loss`). With the
+/// bound lifted every start runs, and a negative or NaN bound is refused by name.
+#[test]
+fn views_no_surface_explains_get_one_fit() {
+    let sphere = w3d_remesh::icosphere(3, 0.4).unwrap();
+    let views = w3d_raster::render_oracle_views(&sphere, &ViewRig::wonder3d_ortho(), 32).unwrap();
+    let (rig, mut images) = views.into_parts();
+    let mut state = 0x2545_f491_4f6c_dd1d_u64;
+    let mut uniform = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 40) as f32 / (1u64 << 24) as f32
+    };
+    for view in &mut images {
+        for m in view.mask.data_mut() {
+            // Keep the sphere's silhouette, with a third of its pixels dropped and specks outside.
+            *m = if (*m > 0.5) == (uniform() < 0.67) { 1.0 } else { 0.0 };
+        }
+        for n in view.normal.data_mut().chunks_exact_mut(3) {
+            let v = glam::Vec3::new(uniform() - 0.5, uniform() - 0.5, uniform() - 0.5).normalize_or(glam::Vec3::Z);
+            n.copy_from_slice(&v.to_array());
+        }
+    }
+    let views = ViewSet::new(rig, images).unwrap();
+    let fast = ReconOptions::preset(Preset::Fast).with_coarse_steps(10).with_untangle_rounds(0).with_polish_steps(0);
+
+    let (_, report) = reconstruct(&views, &fast.with_starts(3), &mut |_| {}).unwrap();
+    let per_view = report.start_losses[0] / views.len() as f32;
+    eprintln!("loss per view of noise views: {per_view}");
+    assert!(per_view > fast.hopeless_view_loss, "loss per view {per_view}");
+    assert_eq!((report.start_losses.len(), report.starts_skipped, report.start_kept), (1, 2, 0));
+
+    let every = fast.with_starts(3).with_hopeless_view_loss(f32::INFINITY);
+    let (_, report) = reconstruct(&views, &every, &mut |_| {}).unwrap();
+    assert_eq!((report.start_losses.len(), report.starts_skipped), (3, 0));
+
+    for bad in [-1.0, f32::NAN] {
+        let error = reconstruct(&views, &fast.with_hopeless_view_loss(bad), &mut |_| {}).unwrap_err().to_string();
+        assert!(error.contains("hopeless_view_loss"), "{error}");
     }
 }
