@@ -102,9 +102,24 @@ pub fn file_in_the_way(dir: &Path) -> Option<PathBuf> {
 /// would; the atomic switch happens in the last one). The caller decides whether `dir` may be
 /// replaced; a file at `dir` or in the way of its parents is refused before `fill` runs, see
 /// [`replaceable_folder`].
-pub fn write_dir_atomic(dir: impl AsRef<Path>, fill: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+///
+/// `manifest` names the file (or folder) in `dir` that `fill` writes last and readers check
+/// first: the view set's `cameras.json`, the dataset's `dataset.json`, a model's
+/// `model_index.json`. It matters when `dir` is a mount point (a container or Kubernetes
+/// volume), which cannot be renamed: there the staging folder is made *inside* `dir`
+/// (`.partial-<pid>-<n>`), filled, and then switched in entry by entry — the old manifest
+/// removed first, then the old entries, then the new ones moved in with the manifest last —
+/// so at every moment `dir` holds either the complete old run, the complete new run, or a
+/// folder without its manifest that every reader refuses, never a mix of two runs that
+/// passes for one. The long work (`fill`) happens before anything old is touched; only an
+/// I/O error during the switch itself (renames within one file system) can leave the folder
+/// without its manifest, and the error says so.
+pub fn write_dir_atomic(dir: impl AsRef<Path>, manifest: &str, fill: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
     let dir = dir.as_ref();
-    replaceable_folder(dir)?;
+    let exists = replaceable_folder(dir)?;
+    if exists && is_mount_point(dir) {
+        return write_dir_in_place(dir, manifest, fill);
+    }
     if let Some(parent) = dir.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
     }
@@ -115,6 +130,106 @@ pub fn write_dir_atomic(dir: impl AsRef<Path>, fill: impl FnOnce(&Path) -> Resul
         return Err(e);
     }
     replace_dir(&staging, dir)
+}
+
+/// Whether the existing folder `dir` is a mount point, which `rename` cannot move ("Device
+/// or resource busy"). On Linux from `/proc/self/mountinfo`, which also lists bind mounts
+/// of a folder of the same file system (as container runtimes make them); elsewhere, and
+/// when that file cannot be read, by the folder's device differing from its parent's.
+pub fn is_mount_point(dir: &Path) -> bool {
+    let Ok(canonical) = dir.canonicalize() else { return false };
+    let Some(parent) = canonical.parent() else { return true };
+    if let Ok(info) = std::fs::read_to_string("/proc/self/mountinfo") {
+        // Field 5 is the mount point, with space, tab, newline and backslash octal-escaped.
+        return info
+            .lines()
+            .filter_map(|line| line.split(' ').nth(4))
+            .any(|m| Path::new(&unescape_octal(m)) == canonical);
+    }
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::MetadataExt;
+        if let (Ok(a), Ok(b)) = (std::fs::metadata(&canonical), std::fs::metadata(parent)) {
+            return a.dev() != b.dev();
+        }
+    }
+    false
+}
+
+/// `\040`-style octal escapes of `/proc/self/mountinfo` decoded.
+fn unescape_octal(field: &str) -> String {
+    let bytes = field.as_bytes();
+    let mut out = Vec::with_capacity(bytes.len());
+    let mut i = 0;
+    while i < bytes.len() {
+        let octal =
+            bytes.get(i + 1..i + 4).filter(|d| bytes[i] == b'\\' && d.iter().all(|c| (b'0'..=b'7').contains(c)));
+        match octal {
+            Some(d) => {
+                out.push(d.iter().fold(0u8, |v, c| v.wrapping_mul(8).wrapping_add(c - b'0')));
+                i += 4;
+            }
+            None => {
+                out.push(bytes[i]);
+                i += 1;
+            }
+        }
+    }
+    String::from_utf8_lossy(&out).into_owned()
+}
+
+/// [`write_dir_atomic`] for a `dir` that cannot be renamed (a mount point): staging inside
+/// `dir`, then the switch described there, manifest out first and in last.
+fn write_dir_in_place(dir: &Path, manifest: &str, fill: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
+    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.subsec_nanos());
+    let staging_name = format!(".partial-{}-{nanos}", std::process::id());
+    let staging = dir.join(&staging_name);
+    let written = std::fs::create_dir(&staging).map_err(|e| Error::io(&staging, e)).and_then(|()| fill(&staging));
+    if let Err(e) = written {
+        let _ = std::fs::remove_dir_all(&staging);
+        return Err(e);
+    }
+    let switch = || -> std::io::Result<()> {
+        remove_entry(&dir.join(manifest))?;
+        for entry in std::fs::read_dir(dir)? {
+            let entry = entry?;
+            if entry.file_name() != staging_name.as_str() {
+                remove_entry(&entry.path())?;
+            }
+        }
+        let mut entries: Vec<_> =
+            std::fs::read_dir(&staging)?.map(|e| e.map(|e| e.file_name())).collect::<std::io::Result<_>>()?;
+        // The manifest last: until it arrives, readers refuse the folder.
+        entries.sort_by_key(|name| name == manifest);
+        for name in entries {
+            std::fs::rename(staging.join(&name), dir.join(&name))?;
+        }
+        std::fs::remove_dir(&staging)
+    };
+    switch().map_err(|e| {
+        let _ = std::fs::remove_dir_all(&staging);
+        Error::invalid(
+            format!("output folder {}", dir.display()),
+            format!(
+                "a mount point whose contents could be switched to the new run, but that failed ({e}): it holds no \
+                 {manifest} now, so readers refuse it; run the command again"
+            ),
+        )
+    })
+}
+
+/// Removes a file, link or folder at `path`; nothing there is not an error.
+fn remove_entry(path: &Path) -> std::io::Result<()> {
+    let result = match std::fs::symlink_metadata(path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(()),
+        Err(e) => return Err(e),
+        Ok(m) if m.is_dir() => std::fs::remove_dir_all(path),
+        Ok(_) => std::fs::remove_file(path),
+    };
+    match result {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        other => other,
+    }
 }
 
 /// A path beside `dir` for a staging or backup folder: `.<name>.<what>-<pid>-<n>`.

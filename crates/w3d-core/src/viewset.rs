@@ -23,6 +23,9 @@ use crate::error::{Error, Result};
 use crate::image::Image;
 use crate::rig::{RigView, ViewRig};
 
+/// The view set's manifest, written last: the rig and every view file's size and hash.
+const MANIFEST: &str = "cameras.json";
+
 /// The images of one view. All images of a [`ViewSet`] share one size.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ViewImages {
@@ -222,7 +225,7 @@ impl ViewSet {
     pub fn save_with(&self, dir: impl AsRef<Path>, extra: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
         let dir = dir.as_ref();
         ViewSet::check_output_dir(dir)?;
-        crate::files::write_dir_atomic(dir, |staging| {
+        crate::files::write_dir_atomic(dir, MANIFEST, |staging| {
             self.write_files(staging)?;
             extra(staging)?;
             write_manifest(staging, &self.rig)
@@ -291,7 +294,7 @@ impl ViewSet {
     /// old folder, files copied in) is refused, naming the file.
     pub fn load(dir: impl AsRef<Path>) -> Result<ViewSet> {
         let dir = dir.as_ref();
-        let rig = ViewRig::load_json(dir.join("cameras.json"))?;
+        let rig = ViewRig::load_json(dir.join(MANIFEST))?;
         check_manifest(dir, &rig)?;
         let mut views = Vec::with_capacity(rig.views.len());
         for r in &rig.views {
@@ -395,7 +398,7 @@ fn write_manifest(dir: &Path, rig: &ViewRig) -> Result<()> {
     let mut value = serde_json::to_value(rig).expect("a rig always serialises");
     value["files"] = serde_json::Value::Object(files);
     let text = serde_json::to_string_pretty(&value).expect("JSON values serialise");
-    let path = dir.join("cameras.json");
+    let path = dir.join(MANIFEST);
     crate::files::write_atomic(&path, |w| {
         std::io::Write::write_all(w, text.as_bytes()).map_err(|e| Error::io(&path, e))
     })
@@ -406,7 +409,7 @@ fn write_manifest(dir: &Path, rig: &ViewRig) -> Result<()> {
 /// load without it).
 #[cfg(feature = "io")]
 fn check_manifest(dir: &Path, rig: &ViewRig) -> Result<()> {
-    let cameras = dir.join("cameras.json");
+    let cameras = dir.join(MANIFEST);
     let text = std::fs::read_to_string(&cameras).map_err(|e| Error::io(&cameras, e))?;
     let value: serde_json::Value =
         serde_json::from_str(&text).map_err(|e| Error::format(&cameras, "JSON", format!("a camera rig ({e})")))?;

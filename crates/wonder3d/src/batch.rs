@@ -55,6 +55,9 @@ use crate::outputs::check_out_folder;
 use crate::pipeline::{Pipeline, Report, Seconds};
 use crate::progress::Progress;
 
+/// An item folder's record of a finished item, written last: what a resumed batch checks.
+const DONE_FILE: &str = "done.json";
+
 /// The largest manifest read (bytes): far above a million items, small enough that a wrong
 /// file (a video, `/dev/zero`) is refused instead of read.
 pub const MAX_MANIFEST_BYTES: u64 = 256 << 20;
@@ -863,7 +866,7 @@ impl Batch {
         }
         let report = output.report.clone();
         let json = serde_json::to_vec_pretty(&report).map_err(|e| Error::invalid("report", e.to_string()))?;
-        write_dir_atomic(folder, |staging| {
+        write_dir_atomic(folder, DONE_FILE, |staging| {
             output.save(staging.join("mesh.glb"))?;
             std::fs::write(staging.join("report.json"), &json)
                 .map_err(|e| Error::io(staging.join("report.json"), e))?;
@@ -963,8 +966,8 @@ fn write_done(dir: &Path, id: &str) -> Result<()> {
     list_files(dir, dir, &mut files)?;
     files.sort_by(|a, b| a.name.cmp(&b.name));
     let json = serde_json::to_vec_pretty(&Done { id: id.to_string(), files })
-        .map_err(|e| Error::invalid("done.json", e.to_string()))?;
-    std::fs::write(dir.join("done.json"), json).map_err(|e| Error::io(dir.join("done.json"), e))
+        .map_err(|e| Error::invalid(DONE_FILE, e.to_string()))?;
+    std::fs::write(dir.join(DONE_FILE), json).map_err(|e| Error::io(dir.join(DONE_FILE), e))
 }
 
 fn list_files(root: &Path, dir: &Path, out: &mut Vec<DoneFile>) -> Result<()> {
@@ -984,7 +987,7 @@ fn list_files(root: &Path, dir: &Path, out: &mut Vec<DoneFile>) -> Result<()> {
 /// Whether `folder` holds a finished item `id`: a `done.json` whose every file is present
 /// with its recorded size and hash.
 fn is_done(folder: &Path, id: &str) -> bool {
-    let Ok(text) = std::fs::read(folder.join("done.json")) else { return false };
+    let Ok(text) = std::fs::read(folder.join(DONE_FILE)) else { return false };
     let Ok(done) = serde_json::from_slice::<Done>(&text) else { return false };
     done.id == id
         && !done.files.is_empty()

@@ -608,7 +608,7 @@ impl Dataset {
         let manifest = self.manifest();
         let json = serde_json::to_vec_pretty(&manifest).map_err(|e| Error::invalid("dataset.json", e.to_string()))?;
         let total = self.samples.len();
-        write_dir_atomic(dir, |staging| {
+        write_dir_atomic(dir, MANIFEST_FILE, |staging| {
             progress(Progress::new(Stage::Render, 0, total, None));
             for (i, (_, sample)) in self.samples.iter().enumerate() {
                 self.render_sample(i)?.save(staging.join(&sample.id))?;

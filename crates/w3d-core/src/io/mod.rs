@@ -12,7 +12,7 @@ use std::path::Path;
 
 pub use crate::exr_limits::{MAX_EXR_PIXELS, check_exr_size};
 pub use crate::files::{
-    file_in_the_way, fnv1a64, replaceable_folder, write_atomic, write_atomic_all, write_dir_atomic,
+    file_in_the_way, fnv1a64, is_mount_point, replaceable_folder, write_atomic, write_atomic_all, write_dir_atomic,
 };
 pub use gltf_io::{read_glb_bytes, read_gltf, write_glb};
 pub use obj::{read_obj, write_obj};

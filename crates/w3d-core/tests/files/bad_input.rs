@@ -239,7 +239,7 @@ fn write_dir_atomic_replaces_a_folder_whole_and_refuses_a_file() {
     std::fs::create_dir(&dir).unwrap();
     std::fs::write(dir.join("stale.txt"), b"earlier run").unwrap();
     // A failing fill leaves the earlier folder as it was and no staging folder beside it.
-    let failed = write_dir_atomic(&dir, |staging| {
+    let failed = write_dir_atomic(&dir, "new.txt", |staging| {
         std::fs::write(staging.join("half.txt"), b"half").unwrap();
         Err(w3d_core::Error::invalid("fill", "a failure for the test"))
     });
@@ -247,7 +247,7 @@ fn write_dir_atomic_replaces_a_folder_whole_and_refuses_a_file() {
     assert_eq!(std::fs::read(dir.join("stale.txt")).unwrap(), b"earlier run");
     assert_eq!(std::fs::read_dir(root.path()).unwrap().count(), 1, "only `out` is left");
     // A successful one replaces it as a whole.
-    write_dir_atomic(&dir, |staging| {
+    write_dir_atomic(&dir, "new.txt", |staging| {
         std::fs::write(staging.join("new.txt"), b"new").map_err(|e| w3d_core::Error::io(staging, e))
     })
     .unwrap();
@@ -258,7 +258,7 @@ fn write_dir_atomic_replaces_a_folder_whole_and_refuses_a_file() {
     let file = root.path().join("a_file");
     std::fs::write(&file, b"keep me").unwrap();
     let mut ran = false;
-    let err = write_dir_atomic(&file, |_| {
+    let err = write_dir_atomic(&file, "new.txt", |_| {
         ran = true;
         Ok(())
     })
@@ -268,4 +268,76 @@ fn write_dir_atomic_replaces_a_folder_whole_and_refuses_a_file() {
     assert!(err.contains("a_file") && err.contains("file"), "{err}");
     assert_eq!(std::fs::read(&file).unwrap(), b"keep me");
     assert_eq!(std::fs::read_dir(root.path()).unwrap().count(), 2);
+}
+
+/// A tmpfs mounted on `dir` for the life of the guard (unmounted on drop), or `None` where
+/// this process may not mount (not root, or a sandbox without the capability).
+struct Mounted(std::path::PathBuf);
+
+impl Mounted {
+    fn tmpfs(dir: &std::path::Path) -> Option<Mounted> {
+        let status = std::process::Command::new("mount")
+            .args(["-t", "tmpfs", "-o", "size=16m", "w3d-test", dir.to_str()?])
+            .stderr(std::process::Stdio::null())
+            .status()
+            .ok()?;
+        status.success().then(|| Mounted(dir.to_path_buf()))
+    }
+}
+
+impl Drop for Mounted {
+    fn drop(&mut self) {
+        let _ = std::process::Command::new("umount").arg("-l").arg(&self.0).status();
+    }
+}
+
+/// A folder that is a mount point (a container or Kubernetes volume) cannot be renamed, so
+/// `write_dir_atomic` switches its contents in place: a failed fill leaves the old run and
+/// no staging folder, a finished one leaves exactly the new run's entries, and the folder
+/// stays the mount point. Runs where the machine lets the test mount a tmpfs (root, as CI
+/// runs); elsewhere it says so and checks only the detection of `/`.
+#[test]
+fn write_dir_atomic_switches_a_mount_point_in_place() {
+    use w3d_core::io::{is_mount_point, write_dir_atomic};
+    assert!(is_mount_point(std::path::Path::new("/")));
+    let root = tempfile::tempdir().unwrap();
+    let dir = root.path().join("volume");
+    std::fs::create_dir(&dir).unwrap();
+    assert!(!is_mount_point(&dir));
+    let Some(_mounted) = Mounted::tmpfs(&dir) else {
+        eprintln!("skipped: this process may not mount a tmpfs");
+        return;
+    };
+    assert!(is_mount_point(&dir));
+    std::fs::write(dir.join("manifest.json"), b"old").unwrap();
+    std::fs::write(dir.join("old.txt"), b"old").unwrap();
+    std::fs::create_dir(dir.join("old_sub")).unwrap();
+    std::fs::write(dir.join("old_sub/x.txt"), b"old").unwrap();
+    let names = |dir: &std::path::Path| {
+        let mut names: Vec<String> =
+            std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        names.sort();
+        names
+    };
+
+    let failed = write_dir_atomic(&dir, "manifest.json", |staging| {
+        assert!(staging.starts_with(&dir), "the staging folder is inside the mount: {}", staging.display());
+        std::fs::write(staging.join("half.txt"), b"half").unwrap();
+        Err(w3d_core::Error::invalid("fill", "a failure for the test"))
+    });
+    assert!(failed.is_err());
+    assert_eq!(names(&dir), ["manifest.json", "old.txt", "old_sub"]);
+
+    write_dir_atomic(&dir, "manifest.json", |staging| {
+        std::fs::create_dir(staging.join("new_sub")).unwrap();
+        std::fs::write(staging.join("new_sub/y.txt"), b"new").unwrap();
+        std::fs::write(staging.join("new.txt"), b"new").unwrap();
+        std::fs::write(staging.join("manifest.json"), b"new").map_err(|e| w3d_core::Error::io(staging, e))
+    })
+    .unwrap();
+    assert_eq!(names(&dir), ["manifest.json", "new.txt", "new_sub"]);
+    assert_eq!(std::fs::read(dir.join("manifest.json")).unwrap(), b"new");
+    assert_eq!(std::fs::read(dir.join("new_sub/y.txt")).unwrap(), b"new");
+    assert!(is_mount_point(&dir), "still the mount point");
+    assert_eq!(names(root.path()), ["volume"], "nothing beside the mount");
 }

@@ -50,6 +50,9 @@ use crate::schedulers::{
     UniPcMultistepScheduler, ddim_invert,
 };
 
+/// A model directory's index, written last by [`MultiViewPipeline::save`].
+const MODEL_INDEX: &str = "model_index.json";
+
 /// Views generated per domain, in rig order: front, front_right, right, back, left,
 /// front_left (`w3d_core::rig::WONDER3D_VIEW_NAMES`).
 pub const NUM_VIEWS: usize = 6;
@@ -566,7 +569,7 @@ impl MultiViewPipeline {
 
     /// [`MultiViewPipeline::save`] with the weights in `precision` (f16 halves the size).
     pub fn save_with(&self, dir: impl AsRef<Path>, precision: Precision) -> Result<(), Error> {
-        w3d_core::io::write_dir_atomic(dir, |staging| self.write_into(staging, precision))
+        w3d_core::io::write_dir_atomic(dir, MODEL_INDEX, |staging| self.write_into(staging, precision))
     }
 
     /// The files of [`MultiViewPipeline::save`], written into the existing folder `staging`.
@@ -588,7 +591,7 @@ impl MultiViewPipeline {
                 "image_encoder": ["transformers", "CLIPVisionModelWithProjection"],
                 "scheduler": ["diffusers", "DDIMScheduler"],
             });
-            let index_path = staging.join("model_index.json");
+            let index_path = staging.join(MODEL_INDEX);
             std::fs::write(&index_path, json(&index)).map_err(|e| Error::io(&index_path, e))
         }
     }

@@ -181,7 +181,7 @@ pub fn run_training_encoded(
     let started = std::time::Instant::now();
     let save = |trainer: &Trainer| -> Result<(), Error> {
         let pipeline = MultiViewPipeline::new(trainer.inference_unet(), vae.clone(), clip.clone(), scheduler.clone())?;
-        w3d_core::io::write_dir_atomic(&checkpoint, |staging| {
+        w3d_core::io::write_dir_atomic(&checkpoint, STATE_FILE, |staging| {
             pipeline.write_into(staging, Precision::F32)?;
             if let Some(ema) = trainer.ema_unet() {
                 ema.save(staging.join(EMA_DIR))?;

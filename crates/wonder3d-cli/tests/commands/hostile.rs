@@ -346,3 +346,44 @@ fn degenerate_triangles_are_reported_not_called_watertight() {
     let err = fails_within(5, &["reconstruct", s(&views), "--out", s(&dir.path().join("x.glb")), "--quiet"]);
     assert!(err.contains("views[0].mask (front)") && err.contains("empty mask"), "{err}");
 }
+
+/// `render` and `dataset` write into an output folder that is a mount point (a container
+/// volume), which cannot be renamed: the run is switched in through a staging folder inside
+/// it, a second run replaces the first whole, and nothing is left beside or inside it but
+/// the run. Runs where the test may mount a tmpfs (root, as CI runs).
+#[test]
+fn outputs_onto_a_mount_point_replace_the_run_inside_it() {
+    let root = tempfile::tempdir().unwrap();
+    let (views, data) = (root.path().join("views"), root.path().join("data"));
+    std::fs::create_dir(&views).unwrap();
+    std::fs::create_dir(&data).unwrap();
+    let Some(_views_mount) = crate::common::Mounted::tmpfs(&views) else {
+        eprintln!("skipped: this process may not mount a tmpfs");
+        return;
+    };
+    let _data_mount = crate::common::Mounted::tmpfs(&data).unwrap();
+    let names = |dir: &Path| {
+        let mut names: Vec<String> =
+            std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        names.sort();
+        names
+    };
+    let spot = asset("spot.obj");
+    for size in ["40", "48"] {
+        let run = wonder3d(&["render", &spot, "--size", size, "--out", s(&views)]);
+        assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+        let set = ViewSet::load(&views).unwrap();
+        assert_eq!(set.width().to_string(), size);
+        assert!(names(&views).iter().all(|n| !n.starts_with('.')), "{:?}", names(&views));
+    }
+    assert!(wonder3d::core::io::is_mount_point(&views));
+    for seed in ["1", "2"] {
+        let args = ["dataset", &spot, "--out", s(&data), "--samples", "2", "--size", "32", "--seed", seed, "--quiet"];
+        let run = wonder3d(&args);
+        assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+        let listed = names(&data);
+        assert_eq!(listed.len(), 3, "two samples and dataset.json: {listed:?}");
+        assert!(listed.contains(&"dataset.json".to_string()));
+    }
+    assert_eq!(names(root.path()), ["data", "views"], "nothing beside the mounts");
+}

@@ -42,3 +42,25 @@ pub fn read_json(path: &Path) -> serde_json::Value {
     let bytes = std::fs::read(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     serde_json::from_slice(&bytes).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
 }
+
+/// A tmpfs mounted on `dir` for the life of the guard (unmounted on drop): an output folder
+/// that is a mount point, as a container or Kubernetes volume is. `None` where this process
+/// may not mount (not root, or a sandbox without the capability).
+pub struct Mounted(PathBuf);
+
+impl Mounted {
+    pub fn tmpfs(dir: &Path) -> Option<Mounted> {
+        let status = Command::new("mount")
+            .args(["-t", "tmpfs", "-o", "size=64m", "w3d-test", dir.to_str()?])
+            .stderr(std::process::Stdio::null())
+            .status()
+            .ok()?;
+        status.success().then(|| Mounted(dir.to_path_buf()))
+    }
+}
+
+impl Drop for Mounted {
+    fn drop(&mut self) {
+        let _ = Command::new("umount").arg("-l").arg(&self.0).status();
+    }
+}
