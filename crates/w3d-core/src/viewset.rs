@@ -17,7 +17,7 @@
 //! refused, so a folder never mixes two renders.
 
 #[cfg(feature = "io")]
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
 use crate::image::Image;
@@ -260,6 +260,20 @@ impl ViewSet {
             }
         }
         Ok(())
+    }
+
+    /// The view-set files in the folder `dir` (`cameras.json`, `normal_*.png|exr`, …): what
+    /// [`ViewSet::load`] may read there, so a command's outputs can be checked against them
+    /// before work. Empty when `dir` is not a readable folder (loading then says why).
+    pub fn input_files(dir: impl AsRef<Path>) -> Vec<PathBuf> {
+        let Ok(entries) = std::fs::read_dir(dir.as_ref()) else { return Vec::new() };
+        let mut files: Vec<PathBuf> = entries
+            .filter_map(|entry| entry.ok())
+            .filter(|entry| entry.file_name().to_str().is_some_and(is_view_set_file))
+            .map(|entry| entry.path())
+            .collect();
+        files.sort();
+        files
     }
 
     /// Writes every image file of the set into `dir` (which exists).

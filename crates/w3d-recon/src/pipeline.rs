@@ -265,7 +265,7 @@ pub fn reconstruct(
     if options.starts == 0 {
         return Err(Error::invalid("starts", "at least 1 fit (got 0)"));
     }
-    if !(options.hopeless_view_loss >= 0.0) {
+    if options.hopeless_view_loss.is_nan() || options.hopeless_view_loss < 0.0 {
         return Err(Error::invalid(
             "hopeless_view_loss",
             format!("a view loss ≥ 0 (or infinity to run every start), got {}", options.hopeless_view_loss),

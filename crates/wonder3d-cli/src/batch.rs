@@ -8,7 +8,9 @@ use std::sync::Mutex;
 use std::time::Duration;
 
 use indicatif::{ProgressBar, ProgressStyle};
-use wonder3d::batch::{Batch, BatchEvent, BatchOptions, ItemStatus, Manifest, Shard};
+use wonder3d::batch::{
+    Batch, BatchEvent, BatchOptions, InputKind, ItemStatus, Manifest, Shard, check_manifest_outside_outputs,
+};
 use wonder3d::{Error, Result, TextureOptions};
 
 use crate::args::PresetArg;
@@ -95,6 +97,7 @@ pub fn run(args: &BatchArgs) -> Result<()> {
     let manifest = Manifest::read(&args.manifest)?;
     // Everything checkable is checked before the weights load.
     let mine = Batch::check(&options, &manifest, args.weights.is_some())?;
+    check_manifest_outside_outputs(&args.manifest, &options, &manifest)?;
     args.sampling.prepare_options()?;
     if !args.quiet {
         eprintln!(
@@ -106,7 +109,12 @@ pub fn run(args: &BatchArgs) -> Result<()> {
             args.out.display()
         );
     }
-    let batch = with_model(Batch::new(options), args)?;
+    // A shard of view folders only needs no model: loading one would cost every task its time.
+    let needs_model = mine.iter().any(|item| item.kind == InputKind::Image);
+    if args.weights.is_some() && !needs_model && !args.quiet {
+        eprintln!("note: --weights not loaded: this shard has no image items");
+    }
+    let batch = if needs_model { with_model(Batch::new(options), args)? } else { Batch::new(options) };
     let bar = if args.quiet { ProgressBar::hidden() } else { ProgressBar::new(mine.len() as u64) };
     bar.set_style(
         ProgressStyle::with_template("{prefix:>8} [{bar:30}] {pos}/{len} {per_sec} ETA {eta} {msg}")

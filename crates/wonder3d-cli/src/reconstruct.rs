@@ -4,7 +4,7 @@
 use std::path::PathBuf;
 
 use wonder3d::core::io::write_atomic;
-use wonder3d::outputs::check_outputs;
+use wonder3d::outputs::{check_distinct, check_outputs, mesh_output_files};
 use wonder3d::{Error, Pipeline, Result, ViewSet};
 
 use crate::args::PresetArg;
@@ -45,6 +45,11 @@ pub struct ReconstructArgs {
 /// `--enhancer`).
 pub fn run(args: &ReconstructArgs) -> Result<()> {
     check_outputs(&args.out, args.report.as_deref(), None)?;
+    let written = mesh_output_files(&args.out);
+    let mut outputs: Vec<(&str, &std::path::Path)> = written.iter().map(|f| ("--out", f.as_path())).collect();
+    outputs.extend(args.report.as_deref().map(|report| ("--report", report)));
+    let view_files = ViewSet::input_files(&args.views);
+    check_distinct(&outputs, &view_files.iter().map(|f| ("VIEWS", f.as_path())).collect::<Vec<_>>())?;
     let texture = wonder3d::TextureOptions::default().with_size(args.texture_size);
     texture.validate()?;
     let iterations = args.refinement.check()?;

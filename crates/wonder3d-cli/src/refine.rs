@@ -90,7 +90,9 @@ pub fn run(args: &RefineArgs) -> Result<()> {
     let written = mesh_output_files(&args.out);
     let mut outputs: Vec<(&str, &std::path::Path)> = written.iter().map(|f| ("--out", f.as_path())).collect();
     outputs.extend(args.report.as_deref().map(|report| ("--report", report)));
+    let view_files = wonder3d::ViewSet::input_files(&args.views);
     let mut inputs = vec![("MESH", args.mesh.as_path())];
+    inputs.extend(view_files.iter().map(|f| ("VIEWS", f.as_path())));
     if let EnhancerArg::Oracle(oracle) = &args.enhancer {
         inputs.push(("--enhancer oracle:", oracle.as_path()));
     }

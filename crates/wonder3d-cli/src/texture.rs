@@ -51,7 +51,10 @@ pub fn run(args: &TextureArgs) -> Result<()> {
     check_mesh_output(&args.out)?;
     let outputs = mesh_output_files(&args.out);
     let outputs: Vec<(&str, &std::path::Path)> = outputs.iter().map(|f| ("--out", f.as_path())).collect();
-    check_distinct(&outputs, &[("MESH", args.mesh.as_path())])?;
+    let view_files = wonder3d::ViewSet::input_files(&args.views);
+    let mut inputs = vec![("MESH", args.mesh.as_path())];
+    inputs.extend(view_files.iter().map(|f| ("VIEWS", f.as_path())));
+    check_distinct(&outputs, &inputs)?;
     let options = TextureOptions::default()
         .with_size(args.size)
         .with_padding(args.padding)

@@ -36,7 +36,7 @@
 //! # Ok::<(), wonder3d::Error>(())
 //! ```
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::fs::File;
 use std::io::Write;
 use std::panic::AssertUnwindSafe;
@@ -54,6 +54,71 @@ use w3d_recon::Preset;
 use crate::outputs::check_out_folder;
 use crate::pipeline::{Pipeline, Report, Seconds};
 use crate::progress::Progress;
+
+/// Where the output folders of `mine` (replaced whole when their item is written) and the
+/// report folder (appended to) lie, resolved through the file system where they exist, so
+/// inputs can be checked against them in one lookup each, whatever the manifest's size.
+struct BatchOutputs {
+    out: PathBuf,
+    ids: HashSet<String>,
+}
+
+impl BatchOutputs {
+    fn new(options: &BatchOptions, mine: &[&Item]) -> BatchOutputs {
+        BatchOutputs { out: resolved(&options.out), ids: mine.iter().map(|i| i.id.clone()).collect() }
+    }
+
+    /// The output folder or report folder that `path` lies in (`None` when outside all).
+    fn holding(&self, path: &Path) -> Option<PathBuf> {
+        let rest = resolved(path).strip_prefix(&self.out).ok()?.to_path_buf();
+        let first = rest.components().next()?.as_os_str().to_string_lossy().into_owned();
+        (first == REPORTS_DIR || self.ids.contains(&first)).then(|| self.out.join(first))
+    }
+}
+
+/// `path` absolute and, where it exists, with links and `..` resolved.
+fn resolved(path: &Path) -> PathBuf {
+    std::fs::canonicalize(path).unwrap_or_else(|_| std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf()))
+}
+
+/// Fails when an input of any item lies inside an output folder this shard replaces as a
+/// whole (an item's `OUT/ID`), or inside the report folder: the input would be deleted with
+/// the folder's old contents, or overwritten, before or while it is read.
+fn check_inputs_outside_outputs(options: &BatchOptions, manifest: &Manifest, mine: &[&Item]) -> Result<()> {
+    let outputs = BatchOutputs::new(options, mine);
+    for item in &manifest.items {
+        if let Some(folder) = outputs.holding(&item.input) {
+            return Err(Error::invalid(
+                format!("manifest line {} input", item.line),
+                format!(
+                    "a path outside the batch's output folders, but {} lies in {}, which this batch writes (item \
+                     folders are replaced as a whole)",
+                    item.input.display(),
+                    folder.display()
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Fails when the manifest file itself lies inside an output folder of this shard or the
+/// report folder (see [`Batch::check`]): a rerun would find it gone or appended to.
+pub fn check_manifest_outside_outputs(manifest_path: &Path, options: &BatchOptions, manifest: &Manifest) -> Result<()> {
+    let mine: Vec<&Item> =
+        manifest.items.iter().enumerate().filter(|(i, _)| options.shard.owns(*i)).map(|(_, item)| item).collect();
+    match BatchOutputs::new(options, &mine).holding(manifest_path) {
+        Some(folder) => Err(Error::invalid(
+            "MANIFEST",
+            format!(
+                "a file outside the batch's output folders, but {} lies in {}, which this batch writes",
+                manifest_path.display(),
+                folder.display()
+            ),
+        )),
+        None => Ok(()),
+    }
+}
 
 /// An item folder's record of a finished item, written last: what a resumed batch checks.
 const DONE_FILE: &str = "done.json";
@@ -684,6 +749,7 @@ impl Batch {
                 ),
             ));
         }
+        check_inputs_outside_outputs(options, manifest, &mine)?;
         if !options.resume {
             let report = options.report_path();
             let earlier = report

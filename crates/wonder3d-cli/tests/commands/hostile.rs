@@ -387,3 +387,60 @@ fn outputs_onto_a_mount_point_replace_the_run_inside_it() {
     }
     assert_eq!(names(root.path()), ["data", "views"], "nothing beside the mounts");
 }
+
+/// No command writes over what it reads: a report named like a file of the input view
+/// folder (`reconstruct`, `texture`, `refine`), a dataset written over its own meshes, a
+/// batch whose item folders or report folder hold an input or the manifest. Each is refused
+/// before any work, naming the flag or line and the path, and the input is left as it was.
+#[test]
+fn outputs_never_overwrite_inputs() {
+    let dir = tempfile::tempdir().unwrap();
+    let views = dir.path().join("views");
+    render_torus(&views);
+    let cameras = views.join("cameras.json");
+    let before = std::fs::read(&cameras).unwrap();
+    let torus = asset("torus.obj");
+    let out = dir.path().join("out.glb");
+    let err = fails_within(5, &["reconstruct", s(&views), "--out", s(&out), "--report", s(&cameras)]);
+    assert!(err.contains("--report") && err.contains("VIEWS") && err.contains("cameras.json"), "{err}");
+    let err = fails_within(5, &["texture", &torus, s(&views), "--out", s(&views.join("mask_front.png"))]);
+    assert!(err.contains("mask_front.png"), "{err}");
+    let obj = views.join("normal_front.obj");
+    let err = fails_within(5, &["texture", &torus, s(&views), "--out", s(&obj)]);
+    assert!(err.contains("--out") && err.contains("normal_front.png"), "an .obj writes its .png beside it: {err}");
+    let err = fails_within(
+        5,
+        &["refine", &torus, s(&views), "--enhancer", "identity", "--out", s(&out), "--report", s(&cameras)],
+    );
+    assert!(err.contains("--report") && err.contains("VIEWS"), "{err}");
+    assert_eq!(std::fs::read(&cameras).unwrap(), before, "the input is untouched");
+
+    // A dataset over its own mesh: the folder would be replaced as a whole, the mesh with it
+    // (`check_dataset_dir` accepts only an earlier dataset, which holds no meshes).
+    let data = dir.path().join("data");
+    std::fs::create_dir(&data).unwrap();
+    let mesh = data.join("torus.obj");
+    std::fs::copy(&torus, &mesh).unwrap();
+    let err = fails_within(5, &["dataset", s(&mesh), "--out", s(&data), "--samples", "1", "--size", "32"]);
+    assert!(err.contains("output folder") && err.contains("torus.obj"), "{err}");
+    assert!(mesh.is_file());
+
+    // A batch item whose input lies in the folder an item of the batch writes (`OUT/ID`).
+    let results = dir.path().join("results");
+    std::fs::create_dir(&results).unwrap();
+    let kept = results.join("views");
+    render_torus(&kept);
+    let manifest = dir.path().join("items.txt");
+    // (Views an earlier batch kept, run again under the id they were kept for.)
+    std::fs::write(&manifest, format!("{{\"input\": \"{}\", \"id\": \"views\"}}\n", kept.display())).unwrap();
+    let err = fails_within(5, &["batch", s(&manifest), "--out", s(&results)]);
+    assert!(err.contains("manifest line 1 input") && err.contains("replaced as a whole"), "{err}");
+    assert!(kept.join("cameras.json").is_file());
+    // The manifest inside the report folder, which every run appends to.
+    let reports = results.join("reports");
+    std::fs::create_dir(&reports).unwrap();
+    let inside = reports.join("items.txt");
+    std::fs::write(&inside, format!("{}\n", views.display())).unwrap();
+    let err = fails_within(5, &["batch", s(&inside), "--out", s(&results)]);
+    assert!(err.contains("MANIFEST") && err.contains("reports"), "{err}");
+}
