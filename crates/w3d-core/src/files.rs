@@ -11,12 +11,20 @@ use crate::error::{Error, Result};
 /// Reads a whole input file after checking that it is a regular file: a folder, a FIFO or
 /// a device such as `/dev/zero` (which never ends) is refused by name instead of read.
 pub(crate) fn read_input(path: &Path) -> Result<Vec<u8>> {
+    regular_file(path)?;
+    std::fs::read(path).map_err(|e| Error::io(path, e))
+}
+
+/// The metadata of the input file `path` when it is a regular file (links followed); a
+/// folder, a FIFO (opening one blocks until something writes to it) or a device is refused
+/// by name before anything opens it.
+pub(crate) fn regular_file(path: &Path) -> Result<std::fs::Metadata> {
     let meta = std::fs::metadata(path).map_err(|e| Error::io(path, e))?;
     if !meta.is_file() {
         let what = if meta.is_dir() { "a folder" } else { "not a regular file (a device or pipe?)" };
         return Err(Error::format(path, "file", format!("a regular file, but it is {what}")));
     }
-    std::fs::read(path).map_err(|e| Error::io(path, e))
+    Ok(meta)
 }
 
 /// A temporary path beside `path` (same directory, so a rename is atomic).

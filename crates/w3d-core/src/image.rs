@@ -127,7 +127,7 @@ impl Image {
     /// exactly as stored (no colour-space conversion). The channel count is the file's.
     pub fn read_png(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref();
-        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        let bytes = crate::files::read_input(path)?;
         let decoded = image::load_from_memory_with_format(&bytes, image::ImageFormat::Png)
             .map_err(|e| Error::format(path, "PNG data", format!("a readable PNG image ({e})")))?;
         from_dynamic(decoded).map_err(|e| e.in_file(path))
@@ -143,7 +143,7 @@ impl Image {
     /// the file.
     pub fn read_with_limits(path: impl AsRef<Path>, limits: &ReadLimits) -> Result<Self> {
         let path = path.as_ref();
-        let len = std::fs::metadata(path).map_err(|e| Error::io(path, e))?.len();
+        let len = crate::files::regular_file(path)?.len();
         // No image format stores fewer than 1/8 byte per pixel on the way in: a file bigger
         // than the whole decoded budget is refused before it is read.
         let max_file = limits.max_pixels.saturating_mul(8).saturating_add(1 << 20);

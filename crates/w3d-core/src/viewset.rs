@@ -315,7 +315,7 @@ impl ViewSet {
             let name = &r.name;
             let exr_path = dir.join(format!("normal_{name}.exr"));
             let png_path = dir.join(format!("normal_{name}.png"));
-            let (normal, alpha) = if exr_path.is_file() {
+            let (normal, alpha) = if present(&exr_path)? {
                 let img = Image::read_exr(&exr_path)?;
                 split_rgba(&img, |x| x)
             } else {
@@ -323,9 +323,9 @@ impl ViewSet {
                 split_rgba(&img, |x| x * 2.0 - 1.0)
             };
             let mask_path = dir.join(format!("mask_{name}.png"));
-            let mask = if mask_path.is_file() { Image::read_png_channels(&mask_path, 1)? } else { alpha };
+            let mask = if present(&mask_path)? { Image::read_png_channels(&mask_path, 1)? } else { alpha };
             let colour_path = dir.join(format!("colour_{name}.png"));
-            let colour = if colour_path.is_file() {
+            let colour = if present(&colour_path)? {
                 let img = Image::read_png(&colour_path)?;
                 match img.channels() {
                     3 => Some(img),
@@ -342,7 +342,7 @@ impl ViewSet {
                 None
             };
             let depth_path = dir.join(format!("depth_{name}.exr"));
-            let depth = if depth_path.is_file() {
+            let depth = if present(&depth_path)? {
                 let img = Image::read_exr(&depth_path)?;
                 let d: Vec<f32> = img.data().chunks_exact(4).map(|p| p[0]).collect();
                 Some(Image::new(img.width(), img.height(), 1, d)?)
@@ -378,6 +378,19 @@ fn is_view_set_file(name: &str) -> bool {
         [("normal_", ".png"), ("normal_", ".exr"), ("colour_", ".png"), ("mask_", ".png"), ("depth_", ".exr")];
     matches!(name, "cameras.json" | "input.png" | "views.png")
         || KINDS.iter().any(|(prefix, ext)| name.starts_with(prefix) && name.ends_with(ext))
+}
+
+/// Whether the view file `path` is there to be read: `false` when nothing has that name,
+/// `true` for a regular file (links followed), an error naming it for anything else (a
+/// folder, a FIFO, a device, a dangling link), which would otherwise be passed over for
+/// the view's other files without a word.
+#[cfg(feature = "io")]
+fn present(path: &Path) -> Result<bool> {
+    match std::fs::symlink_metadata(path) {
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(false),
+        Err(e) => Err(Error::io(path, e)),
+        Ok(_) => crate::files::regular_file(path).map(|_| true),
+    }
 }
 
 /// The files the loader may read for view `name`.
@@ -436,7 +449,7 @@ fn check_manifest(dir: &Path, rig: &ViewRig) -> Result<()> {
     for r in &rig.views {
         for name in view_file_names(&r.name) {
             let path = dir.join(&name);
-            if !path.is_file() {
+            if !present(&path)? {
                 continue;
             }
             let Some(entry) = files.get(&name) else {

@@ -47,7 +47,7 @@ pub struct DatasetArgs {
 
 /// Runs `wonder3d dataset`.
 pub fn run(args: &DatasetArgs) -> Result<()> {
-    check_dataset_dir(&args.out)?;
+    wonder3d::outputs::for_flag("--out", check_dataset_dir(&args.out))?;
     let camera = match args.camera {
         DatasetCameraArg::Ortho => Some(CameraKind::Ortho),
         DatasetCameraArg::Persp => Some(CameraKind::Persp),

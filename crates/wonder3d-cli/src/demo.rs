@@ -67,7 +67,7 @@ fn small_model_dir() -> Result<PathBuf> {
 
 /// Runs `wonder3d demo`.
 pub fn run(args: &DemoArgs) -> Result<()> {
-    check_out_folder(&args.out)?;
+    wonder3d::outputs::for_flag("--out", check_out_folder(&args.out))?;
     wonder3d::TextureOptions::default().with_size(args.texture_size).validate()?;
     let options = DemoOptions::default()
         .with_preset(args.preset.into())

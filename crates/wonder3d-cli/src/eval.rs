@@ -98,7 +98,8 @@ pub fn run(args: &EvalArgs) -> Result<()> {
         pred.normalize_unit_cube();
     }
     let options = EvalOptions::default().with_samples(args.samples).with_seed(args.seed).with_normalize_pred(false);
-    let report = Report::new(&pred, &gt, &options, args.visible)?;
+    let both = format!("PRED {} against GT {}", args.pred.display(), args.gt.display());
+    let report = wonder3d::outputs::for_flag(&both, Report::new(&pred, &gt, &options, args.visible))?;
     let icp: Option<(Similarity, Report)> = if args.icp {
         let similarity = align_icp_scale(&pred, &gt, &IcpOptions::default().with_seed(args.seed))?;
         let aligned = similarity.apply_to_mesh(&pred)?;

@@ -58,7 +58,7 @@ pub struct SamplingArgs {
     pub draws: Option<usize>,
     /// Refuse automatic background removal less confident than this, in [0, 1] (photos
     /// without alpha; 0 accepts every mask).
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(long, default_value_t = 0.5, allow_hyphen_values = true, value_parser = crate::args::confidence)]
     pub min_confidence: f32,
 }
 
@@ -137,7 +137,7 @@ mod with_model {
 
     /// Runs `wonder3d generate`.
     pub fn run(args: &GenerateArgs) -> Result<()> {
-        wonder3d::outputs::check_out_dir(&args.out)?;
+        wonder3d::outputs::for_flag("--out", wonder3d::outputs::check_out_dir(&args.out))?;
         wonder3d::outputs::check_inputs_outside(("--out", &args.out), &[("IMAGE", &args.image)])?;
         // Read and prepare the image before loading the weights: a refused photo fails fast.
         let prepared = wonder3d::prepare_image(&args.image, &args.model.sampling.prepare_options()?)?;

@@ -5,7 +5,7 @@
 
 use std::path::{Path, PathBuf};
 
-use wonder3d::outputs::{check_distinct, check_png_output};
+use wonder3d::outputs::{check_distinct, check_png_output, for_flag};
 use wonder3d::photo::FrameOptions;
 use wonder3d::{Error, PrepareOptions, Prepared, Result, prepare_image};
 
@@ -48,9 +48,9 @@ pub fn describe(image: &Path, prepared: &Prepared) -> String {
 
 /// Runs `wonder3d prepare`.
 pub fn run(args: &PrepareArgs) -> Result<()> {
-    check_png_output(&args.out)?;
+    for_flag("--out", check_png_output(&args.out))?;
     if let Some(mask) = &args.mask_out {
-        check_png_output(mask)?;
+        for_flag("--mask-out", check_png_output(mask))?;
     }
     let mut outputs = vec![("--out", args.out.as_path())];
     outputs.extend(args.mask_out.as_deref().map(|mask| ("--mask-out", mask)));

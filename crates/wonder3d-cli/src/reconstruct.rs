@@ -44,7 +44,7 @@ pub struct ReconstructArgs {
 /// Runs `wonder3d reconstruct`: the closed mesh, untextured (refined and textured with
 /// `--enhancer`).
 pub fn run(args: &ReconstructArgs) -> Result<()> {
-    check_outputs(&args.out, args.report.as_deref(), None)?;
+    check_outputs(("--out", &args.out), args.report.as_deref().map(|r| ("--report", r)), None)?;
     let written = mesh_output_files(&args.out);
     let mut outputs: Vec<(&str, &std::path::Path)> = written.iter().map(|f| ("--out", f.as_path())).collect();
     outputs.extend(args.report.as_deref().map(|report| ("--report", report)));

@@ -86,7 +86,7 @@ pub struct RefineArgs {
 
 /// Runs `wonder3d refine`.
 pub fn run(args: &RefineArgs) -> Result<()> {
-    check_outputs(&args.out, args.report.as_deref(), None)?;
+    check_outputs(("--out", &args.out), args.report.as_deref().map(|r| ("--report", r)), None)?;
     let written = mesh_output_files(&args.out);
     let mut outputs: Vec<(&str, &std::path::Path)> = written.iter().map(|f| ("--out", f.as_path())).collect();
     outputs.extend(args.report.as_deref().map(|report| ("--report", report)));
@@ -128,7 +128,12 @@ pub fn run(args: &RefineArgs) -> Result<()> {
         EnhancerArg::Diffusion(dir) => diffusion_enhancer(dir, None)?,
     };
     let views = ViewSet::load(&args.views)?;
-    let refined = refine_with_bar(&geometry, &views, enhancer.as_ref(), &options, args.quiet)?;
+    // What the views see of the mesh is about both inputs: name them.
+    let both = format!("MESH {} in VIEWS {}", args.mesh.display(), args.views.display());
+    let refined = wonder3d::outputs::for_flag(
+        &both,
+        refine_with_bar(&geometry, &views, enhancer.as_ref(), &options, args.quiet),
+    )?;
     save_mesh(&args.out, &refined.mesh)?;
     if let Some(path) = &args.report {
         let json = serde_json::to_vec_pretty(&refined.report).map_err(|e| Error::invalid("report", e.to_string()))?;

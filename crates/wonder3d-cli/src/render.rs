@@ -30,7 +30,7 @@ pub struct RenderArgs {
 /// Runs `wonder3d render`: normal, colour and mask PNGs, normal and depth EXRs and
 /// `cameras.json` in the view-set folder layout.
 pub fn run(args: &RenderArgs) -> Result<()> {
-    check_out_dir(&args.out)?;
+    wonder3d::outputs::for_flag("--out", check_out_dir(&args.out))?;
     wonder3d::outputs::check_inputs_outside(("--out", &args.out), &[("MESH", &args.mesh)])?;
     let rig = args.rig.rig();
     let mut mesh = load_mesh(&args.mesh)?;

@@ -55,7 +55,11 @@ pub fn run(args: &RunArgs) -> Result<()> {
 
     use crate::{generate, progress};
 
-    check_outputs(&args.out, args.report.as_deref(), args.views.as_deref())?;
+    check_outputs(
+        ("--out", &args.out),
+        args.report.as_deref().map(|r| ("--report", r)),
+        args.views.as_deref().map(|v| ("--views", v)),
+    )?;
     if let Some(views) = &args.views {
         wonder3d::outputs::check_inputs_outside(("--views", views), &[("IMAGE", &args.image)])?;
     }

@@ -48,7 +48,7 @@ pub struct TextureArgs {
 
 /// Runs `wonder3d texture`.
 pub fn run(args: &TextureArgs) -> Result<()> {
-    check_mesh_output(&args.out)?;
+    wonder3d::outputs::for_flag("--out", check_mesh_output(&args.out))?;
     let outputs = mesh_output_files(&args.out);
     let outputs: Vec<(&str, &std::path::Path)> = outputs.iter().map(|f| ("--out", f.as_path())).collect();
     let view_files = wonder3d::ViewSet::input_files(&args.views);
@@ -80,9 +80,14 @@ pub fn run(args: &TextureArgs) -> Result<()> {
     }
     let bar = progress::bar(args.quiet)?;
     let mut follow = progress::follow(&bar);
-    let textured = bake_with_progress(&mesh, &views, &options, &mut |stage| {
-        follow(Progress::new(Stage::Texture(stage.into()), 0, 1, None))
-    })?;
+    // What the views see of the mesh is about both inputs: name them.
+    let both = format!("MESH {} in VIEWS {}", args.mesh.display(), args.views.display());
+    let textured = wonder3d::outputs::for_flag(
+        &both,
+        bake_with_progress(&mesh, &views, &options, &mut |stage| {
+            follow(Progress::new(Stage::Texture(stage.into()), 0, 1, None))
+        }),
+    )?;
     bar.finish_and_clear();
     let r = textured.report;
     save_mesh(&args.out, &textured.mesh)?;

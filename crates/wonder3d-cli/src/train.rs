@@ -130,6 +130,10 @@ pub fn run(args: &TrainArgs) -> Result<()> {
         BackgroundArg::Black => Some(Background::Black),
         BackgroundArg::Grey => Some(Background::Grey),
     };
+    wonder3d::outputs::check_folder_outside_inputs(
+        ("--out", &args.out),
+        &[("--data", args.data.as_path()), ("--init", args.init.as_path())],
+    )?;
     let set = TrainingSet::open(&args.data)?.with_background(background);
     let checkpoint = args.out.join(wonder3d::diffusion::train::CHECKPOINT_DIR);
     if !args.resume && checkpoint.exists() {

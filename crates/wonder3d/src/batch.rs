@@ -83,10 +83,22 @@ fn resolved(path: &Path) -> PathBuf {
 
 /// Fails when an input of any item lies inside an output folder this shard replaces as a
 /// whole (an item's `OUT/ID`), or inside the report folder: the input would be deleted with
-/// the folder's old contents, or overwritten, before or while it is read.
+/// the folder's old contents, or overwritten, before or while it is read; and when the
+/// output folder lies inside an input (a view folder would fill with results).
 fn check_inputs_outside_outputs(options: &BatchOptions, manifest: &Manifest, mine: &[&Item]) -> Result<()> {
     let outputs = BatchOutputs::new(options, mine);
     for item in &manifest.items {
+        if outputs.out.starts_with(resolved(&item.input)) {
+            return Err(Error::invalid(
+                format!("output folder {}", options.out.display()),
+                format!(
+                    "a folder outside the inputs, but it lies in {} (manifest line {}), which would fill with \
+                     results",
+                    item.input.display(),
+                    item.line
+                ),
+            ));
+        }
         if let Some(folder) = outputs.holding(&item.input) {
             return Err(Error::invalid(
                 format!("manifest line {} input", item.line),

@@ -75,38 +75,61 @@ pub fn check_out_folder(dir: impl AsRef<Path>) -> Result<()> {
     }
 }
 
-/// Checks every output of a command before any work: the mesh ([`check_mesh_output`]),
-/// the report file ([`check_parent`]) and the view-set folder ([`check_out_dir`]) when
-/// given, and that no two of them are the same file and that neither file lies inside the
-/// view-set folder (which is replaced as a whole).
-pub fn check_outputs(mesh: &Path, report: Option<&Path>, views: Option<&Path>) -> Result<()> {
-    check_mesh_output(mesh)?;
-    if let Some(report) = report {
-        check_parent(report)?;
+/// Checks every output of a command before any work, each given with the flag or argument
+/// that named it (`("--out", path)`): the mesh ([`check_mesh_output`]), the JSON report
+/// ([`check_report_output`]) and the view-set folder ([`check_out_dir`]) when given; that no
+/// two files are the same ([`check_distinct`]: the mesh's `.mtl` / `.png` included), and that
+/// neither file lies inside the view-set folder (which is replaced as a whole). Errors start
+/// with the name ([`for_flag`]).
+pub fn check_outputs(mesh: (&str, &Path), report: Option<(&str, &Path)>, views: Option<(&str, &Path)>) -> Result<()> {
+    for_flag(mesh.0, check_mesh_output(mesh.1))?;
+    if let Some((name, report)) = report {
+        for_flag(name, check_report_output(report))?;
     }
-    if let Some(views) = views {
-        check_out_dir(views)?;
+    if let Some((name, views)) = views {
+        for_flag(name, check_out_dir(views))?;
     }
-    let absolute = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
-    let mut files: Vec<PathBuf> = mesh_output_files(mesh);
-    files.extend(report.map(Path::to_path_buf));
-    for (i, a) in files.iter().enumerate() {
-        if let Some(b) = files[..i].iter().find(|b| absolute(b) == absolute(a)) {
-            return Err(Error::invalid(
-                format!("output {}", a.display()),
-                format!("a file of its own, but {} is written there too", b.display()),
-            ));
-        }
-        if let Some(views) = views
-            && absolute(a).parent() == Some(absolute(views).as_path())
+    let written = mesh_output_files(mesh.1);
+    let mut files: Vec<(&str, &Path)> = written.iter().map(|f| (mesh.0, f.as_path())).collect();
+    files.extend(report);
+    check_distinct(&files, &[])?;
+    if let Some((name, views)) = views {
+        let absolute = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
+        if let Some((flag, file)) = files.iter().find(|(_, f)| absolute(f).parent() == Some(absolute(views).as_path()))
         {
             return Err(Error::invalid(
-                format!("output {}", a.display()),
-                format!("a file outside the view folder {} (which is replaced as a whole)", views.display()),
+                *flag,
+                format!(
+                    "a file outside the {name} folder {} (which is replaced as a whole), got {}",
+                    views.display(),
+                    file.display()
+                ),
             ));
         }
     }
     Ok(())
+}
+
+/// Fails unless `path` can take a JSON report: a `.json` name in an existing folder (a report
+/// named like a mesh or an image is a slip of the command line, not a wish).
+pub fn check_report_output(path: impl AsRef<Path>) -> Result<()> {
+    let path = path.as_ref();
+    if !path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) {
+        return Err(Error::invalid(format!("output {}", path.display()), "a .json file name (the report is JSON)"));
+    }
+    check_parent(path)
+}
+
+/// `result` with the flag or argument `name` that gave the path in front of its error's
+/// field (`--out: output folder X: expected …`), so the message says which option to fix;
+/// errors that already start with it, and I/O errors (which name the path), pass unchanged.
+pub fn for_flag<T>(name: &str, result: Result<T>) -> Result<T> {
+    result.map_err(|e| match e {
+        Error::Invalid { field, expected } if !field.starts_with(name) => {
+            Error::Invalid { field: format!("{name}: {field}"), expected }
+        }
+        other => other,
+    })
 }
 
 /// Fails when two of a command's `outputs` are the same file, or an output is one of its
@@ -161,6 +184,29 @@ pub fn check_inputs_outside(folder: (&str, &Path), inputs: &[(&str, &Path)]) -> 
     Ok(())
 }
 
+/// Fails when the output folder `folder` is one of the input folders `inputs` or lies inside
+/// one: the run's files would land among the input's (a model or training-set folder that
+/// then holds a foreign run, which later commands refuse or misread). `(name, path)` as in
+/// [`check_distinct`].
+pub fn check_folder_outside_inputs(folder: (&str, &Path), inputs: &[(&str, &Path)]) -> Result<()> {
+    let (flag, folder) = folder;
+    let resolved = |p: &Path| std::fs::canonicalize(p).unwrap_or_else(|_| std::path::absolute(p).unwrap_or_default());
+    let out = resolved(folder);
+    for &(input, path) in inputs {
+        if out.starts_with(resolved(path)) {
+            return Err(Error::invalid(
+                flag,
+                format!(
+                    "a folder outside the {input} input ({} lies in {}, which would receive the run's files)",
+                    folder.display(),
+                    path.display()
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Fails unless `path` can take a PNG: a `.png` name in an existing folder. Call it before
 /// the work.
 pub fn check_png_output(path: impl AsRef<Path>) -> Result<()> {
@@ -198,22 +244,38 @@ mod tests {
     fn every_output_is_checked_together() {
         let dir = tempfile::tempdir().unwrap();
         let p = |name: &str| dir.path().join(name);
-        check_outputs(&p("m.glb"), Some(&p("r.json")), Some(&p("views"))).unwrap();
-        check_outputs(&p("m.obj"), None, None).unwrap();
+        let (mesh, views) = (p("m.glb"), p("views"));
+        check_outputs(("--out", &mesh), Some(("--report", &p("r.json"))), Some(("--views", &views))).unwrap();
+        check_outputs(("--out", &p("m.obj")), None, None).unwrap();
         let err = |mesh: &str, report: Option<&str>, views: Option<&str>| {
-            let (report, views) = (report.map(p), views.map(p));
-            check_outputs(&p(mesh), report.as_deref(), views.as_deref()).unwrap_err().to_string()
+            let (mesh, report, views) = (p(mesh), report.map(p), views.map(p));
+            check_outputs(
+                ("--out", &mesh),
+                report.as_deref().map(|r| ("--report", r)),
+                views.as_deref().map(|v| ("--views", v)),
+            )
+            .unwrap_err()
+            .to_string()
         };
+        assert!(err("m.stl", None, None).contains("--out: output"));
         assert!(err("m.stl", None, None).contains(".glb, .obj or .ply"));
-        assert!(err("m.glb", Some("m.glb"), None).contains("written there too"));
-        assert!(err("m.obj", Some("m.mtl"), None).contains("written there too"));
+        let same = err("m.glb", Some("m.glb"), None);
+        assert!(same.contains("--report") && same.contains(".json file name"), "{same}");
+        let same = err("m.obj", Some("m.png"), None);
+        assert!(same.contains("--report") && same.contains(".json"), "{same}");
         std::fs::create_dir(p("views")).unwrap();
-        assert!(err("views/m.glb", None, Some("views")).contains("replaced as a whole"));
+        let taken = err("views/m.glb", None, Some("views"));
+        assert!(taken.contains("--out") && taken.contains("replaced as a whole"), "{taken}");
         assert!(err("m.glb", Some("no/r.json"), None).contains("create it first"));
         // An OBJ whose texture name is taken by a folder is refused before any work.
         std::fs::create_dir(p("t.png")).unwrap();
         assert!(err("t.obj", None, None).contains("t.png"));
         assert_eq!(mesh_output_files(p("t.obj")), vec![p("t.png"), p("t.mtl"), p("t.obj")]);
         assert_eq!(mesh_output_files(p("t.glb")), vec![p("t.glb")]);
+        // The same file twice, named by both flags.
+        let twice = check_distinct(&[("--out", p("a.json").as_path()), ("--report", p("a.json").as_path())], &[])
+            .unwrap_err()
+            .to_string();
+        assert!(twice.contains("--report") && twice.contains("--out"), "{twice}");
     }
 }
