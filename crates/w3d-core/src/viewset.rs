@@ -253,7 +253,7 @@ impl ViewSet {
                     field(),
                     format!(
                         "a new folder, or one holding only view-set files (it is replaced); {} is not one: \
-                         choose another --out",
+                         choose another folder",
                         entry.path().display()
                     ),
                 ));

@@ -111,8 +111,19 @@ pub fn run(args: &BatchArgs) -> Result<()> {
     }
     // A shard of view folders only needs no model: loading one would cost every task its time.
     let needs_model = mine.iter().any(|item| item.kind == InputKind::Image);
-    if args.weights.is_some() && !needs_model && !args.quiet {
-        eprintln!("note: --weights not loaded: this shard has no image items");
+    if let Some(weights) = &args.weights
+        && !needs_model
+    {
+        // Not loaded, yet a typo must not pass: the folder must be there.
+        if !weights.join("unet").is_dir() {
+            return Err(Error::invalid(
+                "--weights",
+                format!("a model folder with unet/, vae/, image_encoder/ (docs/weights.md), got {}", weights.display()),
+            ));
+        }
+        if !args.quiet {
+            eprintln!("note: --weights not loaded: this shard has no image items");
+        }
     }
     let batch = if needs_model { with_model(Batch::new(options), args)? } else { Batch::new(options) };
     let bar = if args.quiet { ProgressBar::hidden() } else { ProgressBar::new(mine.len() as u64) };

@@ -421,6 +421,9 @@ impl UNetConfig {
         if let Some(v) = self.num_views {
             in_range("num_views", v, 64)?;
         }
+        if let Some(side) = self.sample_size {
+            in_range("sample_size", side, MAX_WIDTH)?;
+        }
         if self.down_block_types.len() != n || self.up_block_types.len() != n {
             return Err(Error::invalid(
                 "down_block_types/up_block_types",
@@ -843,6 +846,9 @@ impl VaeConfig {
         in_range("out_channels", self.out_channels, MAX_WIDTH)?;
         in_range("latent_channels", self.latent_channels, MAX_WIDTH)?;
         in_range("layers_per_block", self.layers_per_block, MAX_LAYERS)?;
+        if let Some(side) = self.sample_size {
+            in_range("sample_size", side, MAX_WIDTH)?;
+        }
         in_range("norm_num_groups", self.norm_num_groups, MAX_WIDTH)?;
         if self.down_block_types.len() != n || self.up_block_types.len() != n {
             return Err(Error::invalid("down_block_types/up_block_types", format!("{n} entries each")));
