@@ -38,7 +38,7 @@ struct Node {
     /// Range `first..first + count` of `order` for leaves; `count == 0` for inner nodes.
     first: usize,
     count: usize,
-    /// Index of the right child for inner nodes (the left child is the next node).
+    /// Index of the right child for inner nodes (the left child is the next node); 0 for leaves.
     right: usize,
 }
 
@@ -47,6 +47,9 @@ struct Node {
 #[derive(Debug, Clone)]
 pub struct WindingNumber {
     corners: Vec<[DVec3; 3]>,
+    /// Per triangle of `corners`: how many times the mesh holds it, counted negative for
+    /// copies wound the other way (every contribution scales by it).
+    weights: Vec<f64>,
     order: Vec<usize>,
     nodes: Vec<Node>,
 }
@@ -66,21 +69,27 @@ fn solid_angle(a: DVec3, b: DVec3, c: DVec3) -> f64 {
 
 impl WindingNumber {
     /// Builds the tree over `mesh`'s triangles (median splits along the longest axis of
-    /// the triangle centroids).
+    /// the triangle centroids). Copies of one triangle (the same three corners, in either
+    /// winding) count once with their multiplicity: the winding number is unchanged, and a
+    /// mesh of many coincident copies (a glTF instancing one mesh thousands of times at one
+    /// place) costs what one copy costs instead of a tree that cannot separate them.
     pub fn new(mesh: &Mesh) -> Self {
-        let corners: Vec<[DVec3; 3]> =
-            (0..mesh.triangle_count()).map(|t| mesh.triangle_corners(t).map(|v| v.as_dvec3())).collect();
+        let (corners, weights) = unique_triangles(mesh);
         let mut order: Vec<usize> = (0..corners.len()).collect();
         let mut nodes = Vec::with_capacity(2 * corners.len() / LEAF_SIZE + 1);
         let centroids: Vec<DVec3> = corners.iter().map(|[a, b, c]| (*a + *b + *c) / 3.0).collect();
-        build(&corners, &centroids, &mut order, 0, &mut nodes);
-        WindingNumber { corners, order, nodes }
+        build(&corners, &weights, &centroids, &mut order, 0, &mut nodes);
+        WindingNumber { corners, weights, order, nodes }
     }
 
     /// The exact winding number at `q`: the sum over every triangle (O(triangles); for
     /// tests and single queries).
     pub fn exact(&self, q: DVec3) -> f64 {
-        self.corners.iter().map(|[a, b, c]| solid_angle(*a - q, *b - q, *c - q)).sum::<f64>()
+        self.corners
+            .iter()
+            .zip(&self.weights)
+            .map(|([a, b, c], w)| w * solid_angle(*a - q, *b - q, *c - q))
+            .sum::<f64>()
             / (4.0 * std::f64::consts::PI)
     }
 
@@ -110,10 +119,11 @@ impl WindingNumber {
                 let d5 = d3 * d2;
                 sum += node.area.dot(r) / d3 + trace / d3 - 3.0 * rmr / d5
                     + 0.5 * (15.0 * s1 / (d5 * d2) - 3.0 * (2.0 * s2 + s3) / d5);
-            } else if node.count > 0 {
+            } else if node.right == 0 {
+                // A leaf (the root is nobody's right child); empty when every triangle cancelled.
                 for &t in &self.order[node.first..node.first + node.count] {
                     let [a, b, c] = self.corners[t];
-                    sum += solid_angle(a - q, b - q, c - q);
+                    sum += self.weights[t] * solid_angle(a - q, b - q, c - q);
                 }
             } else {
                 stack.push(i + 1);
@@ -124,10 +134,42 @@ impl WindingNumber {
     }
 }
 
+/// The distinct triangles of `mesh` and their signed multiplicities: a triangle's key is
+/// its corners' bits starting from the smallest corner (so a rotation of the same triangle
+/// is the same key), and a copy wound the other way (its corners reversed) counts −1.
+/// Triangles whose copies cancel are dropped.
+fn unique_triangles(mesh: &Mesh) -> (Vec<[DVec3; 3]>, Vec<f64>) {
+    type Key = [[u32; 3]; 3];
+    let bits = |v: [f32; 3]| v.map(f32::to_bits);
+    let canonical = |k: Key| -> Key {
+        let first = (0..3).min_by_key(|&i| k[i]).unwrap_or(0);
+        [k[first], k[(first + 1) % 3], k[(first + 2) % 3]]
+    };
+    let mut index: std::collections::HashMap<Key, usize> = std::collections::HashMap::new();
+    let (mut corners, mut weights) = (Vec::new(), Vec::<f64>::new());
+    for t in 0..mesh.triangle_count() {
+        let c = mesh.triangle_corners(t);
+        let key = canonical([bits(c[0].to_array()), bits(c[1].to_array()), bits(c[2].to_array())]);
+        let reversed = canonical([key[0], key[2], key[1]]);
+        if let Some(&i) = index.get(&reversed).filter(|_| reversed != key) {
+            weights[i] -= 1.0;
+        } else if let Some(&i) = index.get(&key) {
+            weights[i] += 1.0;
+        } else {
+            index.insert(key, corners.len());
+            corners.push(c.map(|v| v.as_dvec3()));
+            weights.push(1.0);
+        }
+    }
+    let kept: Vec<usize> = (0..corners.len()).filter(|&i| weights[i] != 0.0).collect();
+    (kept.iter().map(|&i| corners[i]).collect(), kept.iter().map(|&i| weights[i]).collect())
+}
+
 /// Builds the subtree over `order[..]` (which starts at global offset `first`), pushing
 /// nodes in depth-first order; returns the index of the subtree's root.
 fn build(
     corners: &[[DVec3; 3]],
+    weights: &[f64],
     centroids: &[DVec3],
     order: &mut [usize],
     first: usize,
@@ -139,7 +181,7 @@ fn build(
     let (mut lo, mut hi) = (DVec3::splat(f64::INFINITY), DVec3::splat(f64::NEG_INFINITY));
     for &t in order.iter() {
         let [a, b, c] = corners[t];
-        let vector_area = 0.5 * (b - a).cross(c - a);
+        let vector_area = weights[t] * 0.5 * (b - a).cross(c - a);
         area += vector_area;
         weighted += vector_area.length() * centroids[t];
         weight += vector_area.length();
@@ -152,7 +194,7 @@ fn build(
     let mut radius: f64 = 0.0;
     for &t in order.iter() {
         let [a, b, c] = corners[t];
-        let vector_area = 0.5 * (b - a).cross(c - a);
+        let vector_area = weights[t] * 0.5 * (b - a).cross(c - a);
         let offset = centroids[t] - centre;
         // Column j holds A · d_j, so that M_ij = Σ A_i d_j.
         moment += DMat3::from_cols(vector_area * offset.x, vector_area * offset.y, vector_area * offset.z);
@@ -176,8 +218,8 @@ fn build(
     let mid = order.len() / 2;
     order.select_nth_unstable_by(mid, |&x, &y| centroids[x][axis].total_cmp(&centroids[y][axis]));
     let (left, right) = order.split_at_mut(mid);
-    build(corners, centroids, left, first, nodes);
-    let right_index = build(corners, centroids, right, first + mid, nodes);
+    build(corners, weights, centroids, left, first, nodes);
+    let right_index = build(corners, weights, centroids, right, first + mid, nodes);
     nodes[index].count = 0;
     nodes[index].right = right_index;
     index
@@ -222,6 +264,23 @@ mod tests {
             assert!(w.exact(q).abs() < 1e-9, "outside {q}: {}", w.exact(q));
             assert!(w.at(q).abs() < 5e-3, "outside {q}: {}", w.at(q));
         }
+    }
+
+    /// Copies of one triangle count with their multiplicity and orientation: a sphere held
+    /// three times winds three times, a copy of a triangle wound the other way cancels it.
+    #[test]
+    fn coincident_copies_count_with_their_multiplicity() {
+        let s = sphere(3);
+        let n = s.triangles().len();
+        let tripled: Vec<[u32; 3]> = s.triangles().iter().cycle().take(3 * n).copied().collect();
+        let three = WindingNumber::new(&Mesh::new(s.positions().to_vec(), tripled).unwrap());
+        assert_eq!(three.corners.len(), n, "one tree entry per distinct triangle");
+        assert!((three.at(DVec3::ZERO) - 3.0).abs() < 1.5e-2 && (three.exact(DVec3::ZERO) - 3.0).abs() < 1e-9);
+        // Each triangle also wound the other way (rotated, too): everything cancels.
+        let mut both: Vec<[u32; 3]> = s.triangles().to_vec();
+        both.extend(s.triangles().iter().map(|&[a, b, c]| [b, a, c]));
+        let none = WindingNumber::new(&Mesh::new(s.positions().to_vec(), both).unwrap());
+        assert!(none.corners.is_empty() && none.at(DVec3::ZERO) == 0.0);
     }
 
     #[test]
