@@ -25,6 +25,11 @@
 //!   closed mesh, the teapot and the teacups (`target/bench/refine_all_<size>.json`).
 //! - `cargo xtask build-parity`: fails if a dependency of the README's demo build would be
 //!   compiled again, with other features, by the test command.
+//! - `cargo xtask hostile [--quick] [--filter SUBSTR] [--jobs N] [--list]`: the hostile-input
+//!   campaign against every `wonder3d` subcommand (damaged files of every format, bad numbers,
+//!   aliased and unwritable outputs, …), each run classified; `target/hostile/report.md` and
+//!   `report.json`, failing on any panic, signal, timeout, success on bad input or error
+//!   naming nothing (`src/hostile.rs`).
 //! - `cargo xtask layers [--root DIR] [--verbose]`: the import-layering check over every
 //!   package's `src/` (`crates/*`, `xtask`): fails on a module importing a module declared in a
 //!   higher `mod` group of a common ancestor (groups: runs of `mod` lines split by blank or
@@ -70,6 +75,10 @@
 //! - `cargo xtask recon-spread --views DIR|truth --objects spot,… [--seeds N] [--starts K] [--repairs]`:
 //!   the spread of one reconstruction's Chamfer distance over remesher seeds, on the views
 //!   `eval-small` saved (`docs/accuracy.md`, "Several starts").
+//! - `cargo xtask slurm-check [--script-only]`: the Slurm job array of `docs/scale.md`, taken
+//!   from the document, run on a one-node Slurm cluster started on loopback (installed with
+//!   apt-get when missing; needs root): every item done once, a broken one reported, a
+//!   resubmission resumes (`src/slurm.rs`).
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, ExitCode};
@@ -86,11 +95,13 @@ mod curve;
 mod eval_small;
 mod faces_chart;
 mod gpu;
+mod hostile;
 mod layers;
 mod recon;
 mod recon_spread;
 mod refine_table;
 mod robust;
+mod slurm;
 mod train_small;
 mod training_chart;
 
@@ -323,6 +334,10 @@ enum Task {
     /// Check that every dependency the README's demo command compiles is compiled with the
     /// same features by the test command (so the tests reuse it instead of rebuilding it).
     BuildParity,
+    /// Drive every `wonder3d` subcommand with hostile input (issue #63, docs/robustness.md):
+    /// each run classified (panic, signal, timeout, success on bad input, error naming
+    /// nothing, …) into target/hostile/report.{md,json}; fails unless every case is ok.
+    Hostile(hostile::Options),
     /// Check the import layering of every package's `src/`: no module imports one declared in
     /// a higher `mod` group, or its ancestor's file, and no files import each other in a circle.
     Layers {
@@ -358,6 +373,15 @@ enum Task {
         /// Expected triangle count of every file.
         #[arg(long)]
         triangles: Option<usize>,
+    },
+    /// Run the Slurm job array of docs/scale.md on a one-node Slurm cluster started here on
+    /// loopback (Slurm installed with apt-get when missing; needs root): six view folders, one
+    /// broken, over three array tasks, then resubmitted to check that it resumes.
+    SlurmCheck {
+        /// Only print the script as it would be submitted here and its differences from the
+        /// documented one (no Slurm, no root).
+        #[arg(long)]
+        script_only: bool,
     },
 }
 
@@ -822,9 +846,11 @@ fn main() -> ExitCode {
         }
         Task::Package { verify } => package(verify),
         Task::BuildParity => build_parity(),
+        Task::Hostile(options) => hostile::run(&options),
         Task::Layers { root, verbose } => layers::run(&root.unwrap_or_else(workspace_root), verbose),
         Task::ValidateGlb { files } => validate_glb(&files),
         Task::LoadGlb { files, vertices, triangles } => load_glb(&files, vertices, triangles),
+        Task::SlurmCheck { script_only } => slurm::run(script_only),
         Task::Fixtures { which } => fixtures(&which),
         Task::TrainSmall { out, quick, resume, phase_steps, decoder_passes, unet_config } => {
             let overrides = train_small::Overrides { phase_steps, decoder_passes, unet_config };

@@ -386,7 +386,8 @@ pub(crate) fn run(out: &Path, quick: bool, resume: bool, overrides: &Overrides) 
                 .spawn(move || {
                     let t = Instant::now();
                     let vae = tune_decoder(vae, &set, &passes)?;
-                    wonder3d::core::io::write_dir_atomic(&dir, "config.json", |staging| vae.save(staging)).map_err(err)?;
+                    wonder3d::core::io::write_dir_atomic(&dir, "config.json", |staging| vae.save(staging))
+                        .map_err(err)?;
                     eprintln!(
                         "[{:6.0}s] decoder tuned in {:.0} s",
                         started.elapsed().as_secs_f64(),
