@@ -246,8 +246,15 @@ impl ViewRig {
         let bytes = crate::files::read_input(path)?;
         let text = String::from_utf8(bytes)
             .map_err(|e| Error::format(path, format!("byte {}", e.utf8_error().valid_up_to()), "UTF-8 JSON text"))?;
-        let rig: ViewRig = serde_json::from_str(&text).map_err(|e| {
-            Error::format(path, format!("line {} column {}", e.line(), e.column()), format!("a camera rig ({e})"))
+        // The key path of a value of the wrong type or range (`views[0].camera.eye`) says
+        // what to fix; the line and column find it in the file.
+        let mut json = serde_json::Deserializer::from_str(&text);
+        let rig: ViewRig = serde_path_to_error::deserialize(&mut json).map_err(|e| {
+            let key = e.path().to_string();
+            let inner = e.inner();
+            let at = format!("line {} column {}", inner.line(), inner.column());
+            let field = if key == "." { at } else { format!("{key} ({at})") };
+            Error::format(path, field, format!("a camera rig ({inner})"))
         })?;
         rig.validate().map_err(|e| e.in_file(path))?;
         Ok(rig)

@@ -193,6 +193,14 @@ fn fuse_views(
     if !(k.is_finite() && k >= 0.0) {
         return Err(Error::invalid("view_weight_exponent", format!("a finite value ≥ 0, got {k}")));
     }
+    // Colours come only from inside the masks: with every mask empty nothing can be seen,
+    // and the fault is the views', not the mesh's.
+    if views.iter().all(|(_, v)| v.mask.data().iter().all(|&m| m < 0.5)) {
+        return Err(Error::invalid(
+            "views[..].mask",
+            "a silhouette (mask ≥ 0.5) in at least one view, but every view's mask is empty",
+        ));
+    }
     let samplers = fusion::samplers(mesh.positions(), mesh.triangles(), views, None)?;
     let surface = Surface::new(mesh.positions(), mesh.triangles());
     let normals = fusion::welded_normals(&surface);

@@ -341,3 +341,17 @@ fn write_dir_atomic_switches_a_mount_point_in_place() {
     assert!(is_mount_point(&dir), "still the mount point");
     assert_eq!(names(root.path()), ["volume"], "nothing beside the mount");
 }
+
+/// A value of the wrong shape or type in `cameras.json` is named by its key path (and the
+/// line and column), not only by where the parser stopped.
+#[test]
+fn rig_json_errors_name_the_key() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("cameras.json");
+    w3d_core::ViewRig::wonder3d_ortho().save_json(&path).unwrap();
+    let mut json: serde_json::Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    json["views"][1]["camera"]["eye"] = serde_json::json!([0.0, 1.0]);
+    std::fs::write(&path, serde_json::to_vec_pretty(&json).unwrap()).unwrap();
+    let err = w3d_core::ViewRig::load_json(&path).unwrap_err().to_string();
+    assert!(err.contains("views[1].camera.eye") && err.contains("line"), "{err}");
+}

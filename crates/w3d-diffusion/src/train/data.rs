@@ -126,8 +126,12 @@ impl TrainingSet {
             return Err(Error::format(&path, "size", format!("at most {MAX_INDEX_BYTES} bytes (found {len})")));
         }
         let text = std::fs::read(&path).map_err(|e| Error::io(&path, e))?;
-        let index: Index = serde_json::from_slice(&text)
-            .map_err(|e| Error::format(&path, "dataset.json", format!("the training-set index ({e})")))?;
+        let mut json = serde_json::Deserializer::from_slice(&text);
+        let index: Index = serde_path_to_error::deserialize(&mut json).map_err(|e| {
+            let key = e.path().to_string();
+            let field = if key == "." { "json".to_string() } else { key };
+            Error::format(&path, field, format!("the training-set index ({})", e.inner()))
+        })?;
         if index.format != FORMAT || index.version != 2 {
             return Err(Error::format(
                 &path,
