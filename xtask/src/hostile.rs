@@ -212,7 +212,7 @@ fn print_counts(cases: &[(usize, Case)]) {
         e.1 += usize::from(c.quick);
     }
     println!("cases per subcommand (quick in parentheses):");
-    for command in report::COMMANDS {
+    for command in case::COMMANDS {
         let (n, q) = by.get(command).copied().unwrap_or_default();
         println!("  {command:12} {n:4} ({q})");
     }

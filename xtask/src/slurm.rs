@@ -273,7 +273,7 @@ fn local_changes(local: &Local) -> Vec<Change> {
         Change {
             documented: "/shared/models/wonder3d_plus",
             local: path(&local.weights),
-            why: "a model that exists and loads in a moment: batch loads --weights even when every item is a view folder",
+            why: "a model folder that exists: batch checks --weights names one even when every item is a view folder (it loads it only for image items)",
         },
     ]
 }

@@ -7,6 +7,23 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+/// The subcommands in the CLI's order.
+pub(crate) const COMMANDS: [&str; 13] = [
+    "info",
+    "render",
+    "eval",
+    "reconstruct",
+    "texture",
+    "refine",
+    "demo",
+    "prepare",
+    "generate",
+    "run",
+    "batch",
+    "dataset",
+    "train",
+];
+
 /// The placeholder for the case's own folder in arguments, tokens and setup paths.
 pub(crate) const CASE_DIR: &str = "{case}";
 

@@ -3,7 +3,7 @@
 //! string; every output aliased with an input or another output, or unwritable; and the
 //! hostile-looking inputs that are valid and must succeed.
 
-use super::case::{Case, Setup};
+use super::case::{COMMANDS, Case, Setup};
 use super::ctx::{Ctx, MOUNT_POINTS, args, replace_arg, s, with_flag, without_flag};
 
 /// What a path argument must be.
@@ -296,21 +296,7 @@ pub(crate) fn alias_cases(ctx: &Ctx, out: &mut Vec<Case>) {
 pub(crate) fn valid_cases(ctx: &Ctx, out: &mut Vec<Case>) {
     let sd = &ctx.seeds;
     let cheap = ["info", "render", "eval", "reconstruct", "texture", "prepare", "generate", "dataset", "train"];
-    for command in [
-        "info",
-        "render",
-        "eval",
-        "reconstruct",
-        "texture",
-        "refine",
-        "demo",
-        "prepare",
-        "generate",
-        "run",
-        "batch",
-        "dataset",
-        "train",
-    ] {
+    for command in COMMANDS {
         let timeout = if matches!(command, "run" | "demo" | "refine" | "reconstruct" | "batch") { 90 } else { 30 };
         out.push(
             Case::new(command, "valid-base", ctx.base(command), &[])

@@ -6,24 +6,7 @@ use std::fmt::Write as _;
 
 use serde_json::{Value, json};
 
-use super::case::{Class, Outcome};
-
-/// The subcommands in the CLI's order.
-pub(crate) const COMMANDS: [&str; 13] = [
-    "info",
-    "render",
-    "eval",
-    "reconstruct",
-    "texture",
-    "refine",
-    "demo",
-    "prepare",
-    "generate",
-    "run",
-    "batch",
-    "dataset",
-    "train",
-];
+use super::case::{COMMANDS, Class, Outcome};
 
 /// What the report says about the run besides the outcomes.
 pub(crate) struct Summary<'a> {
