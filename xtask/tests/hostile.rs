@@ -106,3 +106,33 @@ fn a_filtered_run_classifies_and_reports() {
     let _ = std::fs::remove_dir_all(&dir);
     let _ = std::fs::remove_dir_all(&foreign);
 }
+
+/// Every subcommand `wonder3d --help` lists is in the campaign: a new command (a server, a
+/// Python entry point's CLI twin) fails this test until it joins (skipped when the binary was
+/// not built beside xtask).
+#[test]
+fn every_cli_subcommand_is_in_the_campaign() {
+    let bin = Path::new(env!("CARGO_BIN_EXE_xtask")).with_file_name("wonder3d");
+    if !bin.is_file() {
+        eprintln!("skipped: no {} (build wonder3d-cli)", bin.display());
+        return;
+    }
+    let help = Command::new(&bin).arg("--help").output().expect("wonder3d runs");
+    let text = String::from_utf8_lossy(&help.stdout);
+    let listed: Vec<&str> = text
+        .split("Commands:")
+        .nth(1)
+        .and_then(|rest| rest.split("Options:").next())
+        .expect("a Commands: section")
+        .lines()
+        .filter_map(|line| line.split_whitespace().next())
+        .filter(|name| *name != "help")
+        .collect();
+    assert!(listed.len() >= 13, "{listed:?}");
+    for name in &listed {
+        assert!(
+            COMMANDS.contains(name),
+            "`wonder3d {name}` is not in the hostile campaign (xtask/src/hostile/case.rs)"
+        );
+    }
+}
