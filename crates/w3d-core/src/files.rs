@@ -146,7 +146,10 @@ pub fn write_dir_atomic(dir: impl AsRef<Path>, manifest: &str, fill: impl FnOnce
 /// when that file cannot be read, by the folder's device differing from its parent's.
 pub fn is_mount_point(dir: &Path) -> bool {
     let Ok(canonical) = dir.canonicalize() else { return false };
-    let Some(parent) = canonical.parent() else { return true };
+    // A root is always one.
+    if canonical.parent().is_none() {
+        return true;
+    }
     if let Ok(info) = std::fs::read_to_string("/proc/self/mountinfo") {
         // Field 5 is the mount point, with space, tab, newline and backslash octal-escaped.
         return info
@@ -157,6 +160,7 @@ pub fn is_mount_point(dir: &Path) -> bool {
     #[cfg(unix)]
     {
         use std::os::unix::fs::MetadataExt;
+        let parent = canonical.parent().unwrap_or(&canonical);
         if let (Ok(a), Ok(b)) = (std::fs::metadata(&canonical), std::fs::metadata(parent)) {
             return a.dev() != b.dev();
         }
@@ -189,8 +193,7 @@ fn unescape_octal(field: &str) -> String {
 /// [`write_dir_atomic`] for a `dir` that cannot be renamed (a mount point): staging inside
 /// `dir`, then the switch described there, manifest out first and in last.
 fn write_dir_in_place(dir: &Path, manifest: &str, fill: impl FnOnce(&Path) -> Result<()>) -> Result<()> {
-    let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.subsec_nanos());
-    let staging_name = format!(".partial-{}-{nanos}", std::process::id());
+    let staging_name = format!(".partial-{}", unique_suffix());
     let staging = dir.join(&staging_name);
     let written = std::fs::create_dir(&staging).map_err(|e| Error::io(&staging, e)).and_then(|()| fill(&staging));
     if let Err(e) = written {
@@ -247,8 +250,14 @@ fn sibling(dir: &Path, what: &str) -> Result<PathBuf> {
         .ok_or_else(|| Error::invalid(format!("output folder {}", dir.display()), "a folder name"))?
         .to_string_lossy()
         .into_owned();
+    Ok(dir.with_file_name(format!(".{name}.{what}-{}", unique_suffix())))
+}
+
+/// `<pid>-<n>` for staging and backup folder names: no two writes running at once share one
+/// (the process id, and the clock's nanoseconds within a process).
+fn unique_suffix() -> String {
     let nanos = std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.subsec_nanos());
-    Ok(dir.with_file_name(format!(".{name}.{what}-{}-{nanos}", std::process::id())))
+    format!("{}-{nanos}", std::process::id())
 }
 
 /// Moves the finished folder `staging` to `dir`, replacing an existing `dir` (moved aside

@@ -8,9 +8,7 @@ use std::sync::Mutex;
 use std::time::Duration;
 
 use indicatif::{ProgressBar, ProgressStyle};
-use wonder3d::batch::{
-    Batch, BatchEvent, BatchOptions, InputKind, ItemStatus, Manifest, Shard, check_manifest_outside_outputs,
-};
+use wonder3d::batch::{Batch, BatchEvent, BatchOptions, InputKind, ItemStatus, Manifest, Shard};
 use wonder3d::{Error, Result, TextureOptions};
 
 use crate::args::PresetArg;
@@ -97,7 +95,6 @@ pub fn run(args: &BatchArgs) -> Result<()> {
     let manifest = Manifest::read(&args.manifest)?;
     // Everything checkable is checked before the weights load.
     let mine = Batch::check(&options, &manifest, args.weights.is_some())?;
-    check_manifest_outside_outputs(&args.manifest, &options, &manifest)?;
     args.sampling.prepare_options()?;
     if !args.quiet {
         eprintln!(

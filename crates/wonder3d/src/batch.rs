@@ -51,7 +51,7 @@ use w3d_core::io::{fnv1a64, write_atomic, write_dir_atomic};
 use w3d_core::{Error, Result, ViewSet};
 use w3d_recon::Preset;
 
-use crate::outputs::check_out_folder;
+use crate::outputs::{check_out_folder, resolved};
 use crate::pipeline::{Pipeline, Report, Seconds};
 use crate::progress::Progress;
 
@@ -76,17 +76,25 @@ impl BatchOutputs {
     }
 }
 
-/// `path` absolute and, where it exists, with links and `..` resolved.
-fn resolved(path: &Path) -> PathBuf {
-    std::fs::canonicalize(path).unwrap_or_else(|_| std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf()))
-}
-
-/// Fails when an input of any item lies inside an output folder this shard replaces as a
-/// whole (an item's `OUT/ID`), or inside the report folder: the input would be deleted with
-/// the folder's old contents, or overwritten, before or while it is read; and when the
-/// output folder lies inside an input (a view folder would fill with results).
+/// Fails when an input of any item, or the manifest file itself, lies inside an output
+/// folder this shard replaces as a whole (an item's `OUT/ID`), or inside the report folder:
+/// the input would be deleted with the folder's old contents, or overwritten, before or while
+/// it is read (a rerun would find the manifest gone or appended to); and when the output
+/// folder lies inside an input (a view folder would fill with results).
 fn check_inputs_outside_outputs(options: &BatchOptions, manifest: &Manifest, mine: &[&Item]) -> Result<()> {
     let outputs = BatchOutputs::new(options, mine);
+    if let Some(path) = &manifest.path
+        && let Some(folder) = outputs.holding(path)
+    {
+        return Err(Error::invalid(
+            "MANIFEST",
+            format!(
+                "a file outside the batch's output folders, but {} lies in {}, which this batch writes",
+                path.display(),
+                folder.display()
+            ),
+        ));
+    }
     for item in &manifest.items {
         if outputs.out.starts_with(resolved(&item.input)) {
             return Err(Error::invalid(
@@ -112,24 +120,6 @@ fn check_inputs_outside_outputs(options: &BatchOptions, manifest: &Manifest, min
         }
     }
     Ok(())
-}
-
-/// Fails when the manifest file itself lies inside an output folder of this shard or the
-/// report folder (see [`Batch::check`]): a rerun would find it gone or appended to.
-pub fn check_manifest_outside_outputs(manifest_path: &Path, options: &BatchOptions, manifest: &Manifest) -> Result<()> {
-    let mine: Vec<&Item> =
-        manifest.items.iter().enumerate().filter(|(i, _)| options.shard.owns(*i)).map(|(_, item)| item).collect();
-    match BatchOutputs::new(options, &mine).holding(manifest_path) {
-        Some(folder) => Err(Error::invalid(
-            "MANIFEST",
-            format!(
-                "a file outside the batch's output folders, but {} lies in {}, which this batch writes",
-                manifest_path.display(),
-                folder.display()
-            ),
-        )),
-        None => Ok(()),
-    }
 }
 
 /// An item folder's record of a finished item, written last: what a resumed batch checks.
@@ -222,6 +212,9 @@ struct ItemLine {
 pub struct Manifest {
     /// The items, in manifest order (the order shards are dealt from).
     pub items: Vec<Item>,
+    /// The file the manifest was read from ([`Manifest::read`]); `None` when parsed from text.
+    /// [`Batch::check`] refuses a manifest inside a folder the batch writes.
+    pub path: Option<PathBuf>,
 }
 
 impl Manifest {
@@ -249,7 +242,8 @@ impl Manifest {
             )
         })?;
         let base = path.parent().filter(|p| !p.as_os_str().is_empty()).unwrap_or(Path::new("."));
-        Manifest::parse(&text, base, &path.display().to_string())
+        let manifest = Manifest::parse(&text, base, &path.display().to_string())?;
+        Ok(Manifest { path: Some(path.to_path_buf()), ..manifest })
     }
 
     /// Parses manifest text; relative inputs are resolved against `base`, and `source` names
@@ -311,7 +305,7 @@ impl Manifest {
         if items.is_empty() {
             return Err(Error::invalid(source, "at least one item (a path or a JSON object per line)"));
         }
-        Ok(Manifest { items })
+        Ok(Manifest { items, path: None })
     }
 }
 

@@ -167,7 +167,6 @@ pub fn check_distinct(outputs: &[(&str, &Path)], inputs: &[(&str, &Path)]) -> Re
 /// replaced by an output of the same name. `(name, path)` as in [`check_distinct`].
 pub fn check_inputs_outside(folder: (&str, &Path), inputs: &[(&str, &Path)]) -> Result<()> {
     let (flag, folder) = folder;
-    let resolved = |p: &Path| std::fs::canonicalize(p).unwrap_or_else(|_| std::path::absolute(p).unwrap_or_default());
     let dir = resolved(folder);
     for &(input, path) in inputs {
         if resolved(path).starts_with(&dir) {
@@ -190,7 +189,6 @@ pub fn check_inputs_outside(folder: (&str, &Path), inputs: &[(&str, &Path)]) -> 
 /// [`check_distinct`].
 pub fn check_folder_outside_inputs(folder: (&str, &Path), inputs: &[(&str, &Path)]) -> Result<()> {
     let (flag, folder) = folder;
-    let resolved = |p: &Path| std::fs::canonicalize(p).unwrap_or_else(|_| std::path::absolute(p).unwrap_or_default());
     let out = resolved(folder);
     for &(input, path) in inputs {
         if out.starts_with(resolved(path)) {
@@ -205,6 +203,12 @@ pub fn check_folder_outside_inputs(folder: (&str, &Path), inputs: &[(&str, &Path
         }
     }
     Ok(())
+}
+
+/// `path` absolute and, where it exists, with links and `..` resolved: what the folder checks
+/// compare, so `a/../b` or a link into a folder counts as inside it.
+pub(crate) fn resolved(path: &Path) -> PathBuf {
+    std::fs::canonicalize(path).unwrap_or_else(|_| std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf()))
 }
 
 /// Fails unless `path` can take a PNG: a `.png` name in an existing folder. Call it before
