@@ -93,19 +93,17 @@ pub fn check_outputs(mesh: (&str, &Path), report: Option<(&str, &Path)>, views: 
     let mut files: Vec<(&str, &Path)> = written.iter().map(|f| (mesh.0, f.as_path())).collect();
     files.extend(report);
     check_distinct(&files, &[])?;
-    if let Some((name, views)) = views {
-        let absolute = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
-        if let Some((flag, file)) = files.iter().find(|(_, f)| absolute(f).parent() == Some(absolute(views).as_path()))
-        {
-            return Err(Error::invalid(
-                *flag,
-                format!(
-                    "a file outside the {name} folder {} (which is replaced as a whole), got {}",
-                    views.display(),
-                    file.display()
-                ),
-            ));
-        }
+    if let Some((name, views)) = views
+        && let Some((flag, file)) = files.iter().find(|(_, f)| absolute(f).parent() == Some(absolute(views).as_path()))
+    {
+        return Err(Error::invalid(
+            *flag,
+            format!(
+                "a file outside the {name} folder {} (which is replaced as a whole), got {}",
+                views.display(),
+                file.display()
+            ),
+        ));
     }
     Ok(())
 }
@@ -138,12 +136,9 @@ pub fn for_flag<T>(name: &str, result: Result<T>) -> Result<T> {
 /// `a/../b`, names the same file). Call it with the other checks, before any work: otherwise
 /// the second write silently replaces the first, or the input is gone before it is read.
 pub fn check_distinct(outputs: &[(&str, &Path)], inputs: &[(&str, &Path)]) -> Result<()> {
-    let same = |a: &Path, b: &Path| {
-        let absolute = |p: &Path| std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf());
-        match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
-            (Ok(a), Ok(b)) => a == b,
-            _ => absolute(a) == absolute(b),
-        }
+    let same = |a: &Path, b: &Path| match (std::fs::canonicalize(a), std::fs::canonicalize(b)) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => absolute(a) == absolute(b),
     };
     for (i, &(name, path)) in outputs.iter().enumerate() {
         if let Some(&(other, _)) = outputs[..i].iter().find(|(_, p)| same(p, path)) {
@@ -205,10 +200,16 @@ pub fn check_folder_outside_inputs(folder: (&str, &Path), inputs: &[(&str, &Path
     Ok(())
 }
 
+/// `path` absolute, as written (no links followed; unchanged when the working directory is
+/// unknown).
+fn absolute(path: &Path) -> PathBuf {
+    std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf())
+}
+
 /// `path` absolute and, where it exists, with links and `..` resolved: what the folder checks
 /// compare, so `a/../b` or a link into a folder counts as inside it.
 pub(crate) fn resolved(path: &Path) -> PathBuf {
-    std::fs::canonicalize(path).unwrap_or_else(|_| std::path::absolute(path).unwrap_or_else(|_| path.to_path_buf()))
+    std::fs::canonicalize(path).unwrap_or_else(|_| absolute(path))
 }
 
 /// Fails unless `path` can take a PNG: a `.png` name in an existing folder. Call it before
