@@ -18,7 +18,7 @@
 //! | [`models`] | UNet and its blocks, VAE, CLIP, ControlNet, IP-Adapter |
 //! | [`nn`] | linear, convolution, norms, attention, GEGLU |
 //! | kernels (private) | CPU kernels for Burn's flex backend, with their backward passes |
-//! | [`loading`], [`device`] | configs, safetensors and key names; the compute device |
+//! | [`loading`], [`device`], [`compute`] | configs, safetensors and key names; the compute device; pass settings and work counts |
 //!
 //! Configs deserialize the `config.json` files of a diffusers checkpoint as they are (a
 //! multi-view `config.json` lacking a field the authors' inference passes explicitly gets
@@ -48,7 +48,9 @@
 // The layers of the crate, bottom up: a module imports only from its own group or the groups
 // declared before it (`cargo xtask layers` checks this; `docs/architecture.md` draws it).
 //
-// Foundations: the compute device; reading checkpoints (configs, safetensors, key names).
+// Foundations: the compute device; how passes compute and what they did (settings, work
+// counts); reading checkpoints (configs, safetensors, key names).
+pub mod compute;
 pub mod device;
 pub mod loading;
 

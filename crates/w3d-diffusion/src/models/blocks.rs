@@ -49,6 +49,7 @@ impl ResnetBlock {
 
     /// `x [n, c_in, h, w]`, `temb_silu` = SiLU of the time embedding `[n, temb]`.
     pub fn forward(&self, x: Tensor<4>, temb_silu: Option<&Tensor<2>>) -> Tensor<4> {
+        crate::compute::record(crate::compute::WorkKind::ResnetBlock, 1);
         let mut h = self.conv1.forward(self.norm1.forward_silu(x.clone()));
         if let (Some(proj), Some(t)) = (&self.time_emb_proj, temb_silu) {
             let t = proj.forward(t.clone());
@@ -297,6 +298,7 @@ impl TransformerBlock {
     /// with cross-domain attention `n` is even (`[normal half, colour half]`); `ip` the
     /// IP-Adapter tokens of the cross-attention (`[n, n_ip, cross_dim]`), if any.
     fn forward(&self, x: Tensor<3>, context: &Tensor<3>, ip: Option<&IpTokens>) -> Tensor<3> {
+        crate::compute::record(crate::compute::WorkKind::TransformerBlock, 1);
         let attn1 = &self.attn1;
         let x = within_views(self.norm1.forward(x.clone()), self.views, |t| attn1.forward(t, None)) + x;
         let x = joint_attention(x, self.norm_joint_mid.as_ref(), self.attn_joint_mid.as_ref());
@@ -393,6 +395,9 @@ pub(crate) struct TransformerShape {
     /// Whether the blocks have the cross-domain attention after the feed-forward
     /// (`attn_joint_last`).
     pub cross_domain_last: bool,
+    /// Whether the transformer sits at the model's highest-resolution level (level 0), the
+    /// only level where [`crate::compute::PassSettings::token_merge`] applies.
+    pub first_level: bool,
 }
 
 impl SpatialTransformer {

@@ -94,6 +94,7 @@ pub(crate) fn transformer_shape(
         views: if multiview && c.multiview_attention { c.views() } else { 1 },
         cross_domain_mid: multiview && c.cd_attention_mid,
         cross_domain_last: multiview && c.cd_attention_last,
+        first_level: level == 0,
     })
 }
 

@@ -42,6 +42,8 @@ pub fn in_groups(x: Tensor<3>, group: usize, f: impl Fn(Tensor<3>) -> Tensor<3>)
 /// Elsewhere (GPU backends, training on ndarray) it is Burn's `attention`, with queries
 /// processed in chunks so that at most [`ATTENTION_MAX_SCORES`] scores exist at a time.
 pub fn multi_head_attention(q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usize) -> Tensor<3> {
+    let [b, tq, _] = q.dims();
+    crate::compute::record(crate::compute::WorkKind::AttentionScores, (b * heads * tq * k.dims()[1]) as u64);
     if cpu_kernel_applies(&q, &k, &v) {
         return cpu_kernel_attention(q, k, v, heads);
     }
