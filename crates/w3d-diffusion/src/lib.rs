@@ -93,7 +93,7 @@ pub use models::clip::vision::{
 };
 pub use models::controlnet::ControlNet;
 pub use models::ip_adapter::ImageProjection;
-pub use models::unet::{ControlResiduals, UNet, UNetExtra};
+pub use models::unet::{ControlResiduals, FeatureCache, UNet, UNetExtra};
 pub use models::vae::Vae;
 pub use pipelines::guidance::{classifier_free_guidance, gaussian_noise};
 pub use pipelines::multiview::{

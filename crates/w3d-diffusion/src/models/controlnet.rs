@@ -225,6 +225,39 @@ impl ControlNet {
         control: Tensor<4>,
         scale: f32,
     ) -> Result<ControlResiduals, Error> {
+        self.residuals(sample, timesteps, context, control, scale, None)
+    }
+
+    /// The residuals of skips `0..=depth` only, for the shallow branch of a cached UNet pass
+    /// ([`crate::models::unet::UNet::forward_cached`], DeepCache): the ControlNet runs only
+    /// as far as that skip. Arguments and errors as [`ControlNet::forward`]; the returned mid
+    /// residual is a `[n, c, 1, 1]` zero stand-in (a shallow pass does not use it).
+    pub fn forward_shallow(
+        &self,
+        sample: Tensor<4>,
+        timesteps: &[f32],
+        context: Tensor<3>,
+        control: Tensor<4>,
+        scale: f32,
+        depth: usize,
+    ) -> Result<ControlResiduals, Error> {
+        let skips = self.zero_convs.len();
+        if depth >= skips {
+            return Err(Error::invalid("cache depth", format!("a skip index below {skips} (found {depth})")));
+        }
+        self.residuals(sample, timesteps, context, control, scale, Some(depth))
+    }
+
+    /// [`ControlNet::forward`], or up to skip `last_skip` only.
+    fn residuals(
+        &self,
+        sample: Tensor<4>,
+        timesteps: &[f32],
+        context: Tensor<3>,
+        control: Tensor<4>,
+        scale: f32,
+        last_skip: Option<usize>,
+    ) -> Result<ControlResiduals, Error> {
         let c = &self.config.unet;
         let timesteps = DownPath::check_inputs(c, &sample, timesteps, &context)?;
         let [n, _, h, w] = sample.dims();
@@ -246,11 +279,18 @@ impl ControlNet {
             "bgr" => control.flip([1]),
             _ => control,
         };
-        let temb = self.down.embed_time(c, &timesteps, None, &sample.device())?;
+        let device = sample.device();
+        let temb = self.down.embed_time(c, &timesteps, None, &device)?;
         let cond = self.cond_embedding.forward(control);
-        let (skips, mid) = self.down.forward(c, sample, &temb, &context, Some(cond), None);
+        let (skips, mid) = self.down.forward_until(c, sample, &temb, &context, Some(cond), None, last_skip);
         let down = skips.into_iter().zip(&self.zero_convs).map(|(skip, conv)| conv.forward(skip) * scale).collect();
-        let mid = self.mid_zero_conv.forward(mid) * scale;
+        let mid = match mid {
+            Some(mid) => self.mid_zero_conv.forward(mid) * scale,
+            None => {
+                let c_mid = c.block_out_channels[c.block_out_channels.len() - 1];
+                Tensor::zeros([n, c_mid, 1, 1], &device)
+            }
+        };
         Ok(ControlResiduals { down, mid })
     }
 }

@@ -189,7 +189,7 @@ impl DownPath {
         }
     }
 
-    /// The shapes of the skip tensors [`DownPath::forward`] returns for an `[n, _, h, w]`
+    /// The shapes of the skip tensors [`DownPath::forward_until`] returns for an `[n, _, h, w]`
     /// sample, in order: the `conv_in` output, then per level every ResNet (+ transformer)
     /// output and the down-sampler's output (12 for Stable Diffusion 1.5). These are the
     /// shapes of a ControlNet's down residuals.
@@ -238,8 +238,10 @@ impl DownPath {
     /// ControlNet's condition embedding, `[n, block_out_channels[0], h, w]`), then the down
     /// blocks and the mid block with `temb_silu` ([`DownPath::embed_time`]) and `context`.
     /// Returns the skip tensors (shapes: [`DownPath::skip_shapes`]) and the mid block's
-    /// output.
-    pub(crate) fn forward(
+    /// output; with `last_skip = Some(d)` it stops after skip `d` and returns the skips
+    /// `0..=d` and no mid block output (the shallow branch of a cached pass, [`FeatureCache`]).
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn forward_until(
         &self,
         c: &UNetConfig,
         sample: Tensor<4>,
@@ -247,8 +249,10 @@ impl DownPath {
         context: &Tensor<3>,
         added: Option<Tensor<4>>,
         ip: Option<&IpTokens>,
-    ) -> (Vec<Tensor<4>>, Tensor<4>) {
+        last_skip: Option<usize>,
+    ) -> (Vec<Tensor<4>>, Option<Tensor<4>>) {
         let temb = temb_silu;
+        let done = |skips: &Vec<Tensor<4>>| last_skip.is_some_and(|d| skips.len() > d);
         let mut x = if c.center_input_sample { sample * 2.0 - 1.0 } else { sample };
         x = self.conv_in.forward(x);
         if let Some(added) = added {
@@ -257,6 +261,9 @@ impl DownPath {
         let mut skips = vec![x.clone()];
         for block in &self.down_blocks {
             for (j, resnet) in block.resnets.iter().enumerate() {
+                if done(&skips) {
+                    return (skips, None);
+                }
                 x = resnet.forward(x, Some(temb));
                 if let Some(attn) = block.attentions.get(j) {
                     x = attn.forward_with_ip(x, context, ip);
@@ -264,14 +271,60 @@ impl DownPath {
                 skips.push(x.clone());
             }
             if let Some(down) = &block.downsampler {
+                if done(&skips) {
+                    return (skips, None);
+                }
                 x = down.forward(x);
                 skips.push(x.clone());
             }
         }
+        if done(&skips) {
+            return (skips, None);
+        }
         x = self.mid_resnets[0].forward(x, Some(temb));
         x = self.mid_attention.forward_with_ip(x, context, ip);
         x = self.mid_resnets[1].forward(x, Some(temb));
-        (skips, x)
+        (skips, Some(x))
+    }
+}
+
+/// The feature one branch of the sampling loop keeps between UNet passes for DeepCache (Ma
+/// et al. 2023, "DeepCache: Accelerating Diffusion Models for Free"): the input of the up
+/// path's layer that consumes skip `depth`, from the last full pass. The deep part of the
+/// UNet changes slowly from one denoising step to the next, so the passes between two full
+/// ones ([`UNet::forward_cached`] with `reuse`) compute only the shallow branch — `conv_in`,
+/// the down layers up to skip `depth` and the last `depth + 1` up layers — and take the deep
+/// part's contribution from here.
+///
+/// Skips are numbered as [`UNet`]'s down path produces them: 0 is `conv_in`'s output, then
+/// every down layer's output and every down-sampler's (12 in Stable Diffusion 1.5, whose
+/// first level gives skips 1 and 2; the shipped small model has 6). Depth 0 recomputes only
+/// `conv_in` and the last up layer.
+#[derive(Clone, Debug)]
+pub struct FeatureCache {
+    depth: usize,
+    feature: Option<Tensor<4>>,
+}
+
+impl FeatureCache {
+    /// An empty cache for the branch at skip `depth`.
+    pub fn new(depth: usize) -> Self {
+        Self { depth, feature: None }
+    }
+
+    /// The skip the cached branch starts at.
+    pub fn depth(&self) -> usize {
+        self.depth
+    }
+
+    /// Whether a full pass has filled the cache.
+    pub fn is_filled(&self) -> bool {
+        self.feature.is_some()
+    }
+
+    /// Forgets the cached feature (the next pass is a full one).
+    pub fn clear(&mut self) {
+        self.feature = None;
     }
 }
 
@@ -437,6 +490,55 @@ impl UNet {
         class_labels: Option<Tensor<2>>,
         extra: &UNetExtra,
     ) -> Result<Tensor<4>, Error> {
+        self.run(sample, timesteps, context, class_labels, extra, Pass::Full(None))
+    }
+
+    /// [`UNet::forward_with`] with DeepCache ([`FeatureCache`]): with `reuse` false, or
+    /// while `cache` holds no feature for a batch of this size, a full pass that fills
+    /// `cache`; with `reuse`, only the shallow branch, the deep part's contribution taken
+    /// from `cache`. A ControlNet's residuals may then be all of them or only those of the
+    /// skips `0..=depth` ([`crate::models::controlnet::ControlNet::forward_shallow`]); the
+    /// mid residual is not used.
+    ///
+    /// Errors: as [`UNet::forward_with`], and a depth beyond the last skip.
+    #[allow(clippy::too_many_arguments)]
+    pub fn forward_cached(
+        &self,
+        sample: Tensor<4>,
+        timesteps: &[f32],
+        context: Tensor<3>,
+        class_labels: Option<Tensor<2>>,
+        extra: &UNetExtra,
+        cache: &mut FeatureCache,
+        reuse: bool,
+    ) -> Result<Tensor<4>, Error> {
+        let skips = self.skip_count();
+        if cache.depth >= skips {
+            return Err(Error::invalid(
+                "cache depth",
+                format!("a skip index below {skips}, the UNet's skip count (found {})", cache.depth),
+            ));
+        }
+        let n = sample.dims()[0];
+        match &cache.feature {
+            Some(feature) if reuse && feature.dims()[0] == n => {
+                let feature = feature.clone();
+                self.run(sample, timesteps, context, class_labels, extra, Pass::Shallow(feature, cache.depth))
+            }
+            _ => self.run(sample, timesteps, context, class_labels, extra, Pass::Full(Some(cache))),
+        }
+    }
+
+    /// The UNet pass behind [`UNet::forward_with`] and [`UNet::forward_cached`].
+    fn run(
+        &self,
+        sample: Tensor<4>,
+        timesteps: &[f32],
+        context: Tensor<3>,
+        class_labels: Option<Tensor<2>>,
+        extra: &UNetExtra,
+        pass: Pass<'_>,
+    ) -> Result<Tensor<4>, Error> {
         let c = &self.config;
         let timesteps = DownPath::check_inputs(c, &sample, timesteps, &context)?;
         let [n, _, h, w] = sample.dims();
@@ -451,34 +553,65 @@ impl UNet {
                 ),
             ));
         }
+        let shallow_depth = match &pass {
+            Pass::Shallow(_, depth) => Some(*depth),
+            Pass::Full(_) => None,
+        };
         if let Some(control) = &extra.control {
-            check_residuals(c, control, n, h, w)?;
+            check_residuals(c, control, n, h, w, shallow_depth)?;
         }
         let ip = extra.ip.as_ref();
         if let Some(ip) = ip {
             self.check_ip_tokens(ip, n)?;
         }
+        crate::compute::record(crate::compute::WorkKind::UNetPass, 1);
         let device = sample.device();
         let temb = self.down.embed_time(c, &timesteps, class_labels, &device)?;
 
-        let (mut skips, mut x) = self.down.forward(c, sample, &temb, &context, None, ip);
+        let (mut skips, mid) = self.down.forward_until(c, sample, &temb, &context, None, ip, shallow_depth);
         if let Some(control) = &extra.control {
             skips = skips.into_iter().zip(&control.down).map(|(skip, r)| skip + r.clone()).collect();
-            x = x + control.mid.clone();
         }
+        // The up path's layers in order; layer `k` consumes skip `skip_count - 1 - k`.
+        let skip_count = DownPath::skip_shapes(c, n, h, w).len();
+        let (mut x, first_layer, mut store) = match pass {
+            Pass::Full(store) => {
+                let mut x = mid.ok_or_else(|| Error::invalid("unet", "a mid block output after the down path"))?;
+                if let Some(control) = &extra.control {
+                    x = x + control.mid.clone();
+                }
+                (x, 0, store)
+            }
+            Pass::Shallow(feature, depth) => (feature, skip_count - 1 - depth, None),
+        };
+        let mut layer = 0;
         for block in &self.up_blocks {
             for (j, resnet) in block.resnets.iter().enumerate() {
-                let skip = skips.pop().ok_or_else(|| Error::invalid("unet", "a skip connection per up ResNet"))?;
-                x = resnet.forward(Tensor::cat(vec![x, skip], 1), Some(&temb));
-                if let Some(attn) = block.attentions.get(j) {
-                    x = attn.forward_with_ip(x, &context, ip);
+                if layer >= first_layer {
+                    if let Some(cache) = store.as_deref_mut().filter(|cache| skip_count - 1 - layer == cache.depth) {
+                        cache.feature = Some(x.clone());
+                    }
+                    let skip = skips.pop().ok_or_else(|| Error::invalid("unet", "a skip connection per up ResNet"))?;
+                    x = resnet.forward(Tensor::cat(vec![x, skip], 1), Some(&temb));
+                    if let Some(attn) = block.attentions.get(j) {
+                        x = attn.forward_with_ip(x, &context, ip);
+                    }
                 }
+                layer += 1;
             }
-            if let Some(up) = &block.upsampler {
+            if let Some(up) = &block.upsampler
+                && layer > first_layer
+            {
                 x = up.forward(x);
             }
         }
         Ok(self.conv_out.forward(self.conv_norm_out.forward_silu(x)))
+    }
+
+    /// The number of skip connections (the first is `conv_in`'s output): the DeepCache depths
+    /// are `0..skip_count()`.
+    pub fn skip_count(&self) -> usize {
+        DownPath::skip_shapes(&self.config, 1, 0, 0).len()
     }
 
     /// Checks IP-Adapter tokens for a batch of `n` rows against this model.
@@ -519,6 +652,13 @@ impl UNet {
     }
 }
 
+/// How [`UNet::run`] evaluates: the whole UNet (filling a DeepCache feature cache if given), or
+/// only the shallow branch from skip `depth`, the deep part's contribution given.
+enum Pass<'a> {
+    Full(Option<&'a mut FeatureCache>),
+    Shallow(Tensor<4>, usize),
+}
+
 /// Sinusoidal timestep features `[n, block_out_channels[0]]` of `c` (see
 /// [`UNet::timestep_features`]).
 pub(crate) fn timestep_features(c: &UNetConfig, timesteps: &[f32], device: &Device) -> Tensor<2> {
@@ -545,9 +685,33 @@ pub(crate) fn timestep_features(c: &UNetConfig, timesteps: &[f32], device: &Devi
 }
 
 /// Checks ControlNet residuals against the skips of an `[n, _, h, w]` sample of `c`: one per
-/// skip with its exact shape, and a mid residual of the mid block's output shape.
-fn check_residuals(c: &UNetConfig, control: &ControlResiduals, n: usize, h: usize, w: usize) -> Result<(), Error> {
-    let shapes = DownPath::skip_shapes(c, n, h, w);
+/// skip with its exact shape, and a mid residual of the mid block's output shape; for the
+/// shallow branch of a cached pass (`shallow_depth = Some(d)`) the residuals of skips `0..=d`
+/// are enough (more are ignored) and the mid residual is not used.
+fn check_residuals(
+    c: &UNetConfig,
+    control: &ControlResiduals,
+    n: usize,
+    h: usize,
+    w: usize,
+    shallow_depth: Option<usize>,
+) -> Result<(), Error> {
+    let mut shapes = DownPath::skip_shapes(c, n, h, w);
+    if let Some(d) = shallow_depth
+        && control.down.len() < shapes.len()
+    {
+        shapes.truncate(d + 1);
+        if control.down.len() != shapes.len() {
+            return Err(Error::invalid(
+                "control.down",
+                format!(
+                    "{} residuals for a cached pass from skip {d}, or one per skip connection (found {})",
+                    shapes.len(),
+                    control.down.len()
+                ),
+            ));
+        }
+    }
     if control.down.len() != shapes.len() {
         return Err(Error::invalid(
             "control.down",
@@ -562,7 +726,8 @@ fn check_residuals(c: &UNetConfig, control: &ControlResiduals, n: usize, h: usiz
     let levels = c.block_out_channels.len();
     let side = 1 << (levels - 1);
     let want = [n, c.block_out_channels[levels - 1], h / side, w / side];
-    if control.mid.dims() != want {
+    // A shallow pass never reaches the mid block, so its mid residual is not looked at.
+    if shallow_depth.is_none() && control.mid.dims() != want {
         return Err(Error::invalid("control.mid", format!("shape {want:?} (found {:?})", control.mid.dims())));
     }
     Ok(())

@@ -39,10 +39,11 @@ use burn::tensor::{Device, Tensor, TensorData};
 use image::imageops::FilterType;
 use w3d_core::{Error, Image, ViewImages, ViewRig, ViewSet};
 
+use crate::compute::{self, PassSettings, Products};
 use crate::loading::config::SchedulerConfig;
 use crate::loading::weights::{Precision, WeightStorage};
 use crate::models::clip::vision::{ClipVision, preprocess as clip_preprocess};
-use crate::models::unet::UNet;
+use crate::models::unet::{FeatureCache, UNet, UNetExtra};
 use crate::models::vae::Vae;
 use crate::pipelines::guidance::{classifier_free_guidance, gaussian_noise};
 use crate::schedulers::{
@@ -289,10 +290,31 @@ pub struct SampleOptions {
     /// generation (up to [`DRAWS_PER_PASS`] share the UNet's passes), and with a small model a
     /// few draws lower the normal error (docs/training.md).
     pub draws: usize,
+    /// Where the unconditional branch of classifier-free guidance runs, as noise levels `t/T`
+    /// (`T` the training schedule's length): steps whose timestep lies outside `[lo, hi]` run
+    /// the conditional branch alone (guidance 1) and cost half a guided step (Kynkäänniemi et
+    /// al. 2024, "Applying guidance in a limited interval"). `[0, 1]`: every step, the
+    /// reference.
+    pub guidance_interval: [f64; 2],
+    /// DeepCache (Ma et al. 2023): one full UNet pass every `cache_interval` steps, and in
+    /// between only the shallow branch from skip [`SampleOptions::cache_depth`], the deep
+    /// features taken from the last full pass ([`crate::models::unet::FeatureCache`]). 1: every
+    /// pass full, the reference.
+    pub cache_interval: usize,
+    /// The skip the shallow branch of a cached pass starts at (see
+    /// [`crate::models::unet::FeatureCache`]: 0 is `conv_in`; 1 adds the first down layer).
+    pub cache_depth: usize,
+    /// How the UNet passes compute: bf16 products, token merging ([`PassSettings`]).
+    pub pass: PassSettings,
 }
 
+/// The highest DeepCache interval [`SampleOptions::validate`] accepts: a full pass at least
+/// every this many steps.
+pub const MAX_CACHE_INTERVAL: usize = 50;
+
 impl Default for SampleOptions {
-    /// The Wonder3D++ defaults: DDIM, 50 steps, guidance 2, eta 1, orthographic, seed 42, one draw.
+    /// The Wonder3D++ defaults: DDIM, 50 steps, guidance 2 at every step, eta 1, orthographic,
+    /// seed 42, one draw, every pass full in f32 products.
     fn default() -> Self {
         Self {
             sampler: SamplerKind::Ddim,
@@ -302,7 +324,73 @@ impl Default for SampleOptions {
             camera: CameraType::Orthographic,
             seed: 42,
             draws: 1,
+            guidance_interval: [0.0, 1.0],
+            cache_interval: 1,
+            cache_depth: 1,
+            pass: PassSettings::default(),
         }
+    }
+}
+
+impl SampleOptions {
+    /// Checks the settings that need no model: at least 1 step and 1 draw, a finite
+    /// guidance scale, a guidance interval `0 ≤ lo ≤ hi ≤ 1`, a cache interval in
+    /// `1..=`[`MAX_CACHE_INTERVAL`], and valid [`PassSettings`]. (The cache depth is checked
+    /// against the UNet's skips when sampling starts.)
+    pub fn validate(&self) -> Result<(), Error> {
+        if self.steps == 0 {
+            return Err(Error::invalid("steps", "at least 1 sampling step (found 0)"));
+        }
+        if self.draws == 0 {
+            return Err(Error::invalid("draws", "at least 1 draw (found 0)"));
+        }
+        if !self.guidance.is_finite() {
+            return Err(Error::invalid("guidance", format!("a finite scale (found {})", self.guidance)));
+        }
+        let [lo, hi] = self.guidance_interval;
+        if !(0.0..=1.0).contains(&lo) || !(0.0..=1.0).contains(&hi) || lo > hi {
+            return Err(Error::invalid(
+                "guidance_interval",
+                format!("noise levels lo ≤ hi within [0, 1] (found [{lo}, {hi}])"),
+            ));
+        }
+        if !(1..=MAX_CACHE_INTERVAL).contains(&self.cache_interval) {
+            return Err(Error::invalid(
+                "cache_interval",
+                format!(
+                    "a full UNet pass every 1..={MAX_CACHE_INTERVAL} steps (1: no caching; found {})",
+                    self.cache_interval
+                ),
+            ));
+        }
+        self.pass.validate()
+    }
+
+    /// Whether step `t` (a training timestep of a schedule of `train_timesteps`) runs the
+    /// unconditional branch: guidance other than 1 and `t/T` inside the guidance interval.
+    pub fn guided_at(&self, t: usize, train_timesteps: usize) -> bool {
+        let level = t as f64 / train_timesteps.max(1) as f64;
+        self.guidance != 1.0 && self.guidance_interval[0] <= level && level <= self.guidance_interval[1]
+    }
+
+    /// A short description of the accelerations in use, for run reports and logs: e.g.
+    /// `"guidance in [0.1, 0.8], DeepCache every 3 from skip 1, bf16 products"`, or
+    /// `"none"`.
+    pub fn accelerations(&self) -> String {
+        let mut parts = Vec::new();
+        if self.guidance_interval != [0.0, 1.0] && self.guidance != 1.0 {
+            parts.push(format!("guidance in [{}, {}]", self.guidance_interval[0], self.guidance_interval[1]));
+        }
+        if self.cache_interval > 1 {
+            parts.push(format!("DeepCache every {} from skip {}", self.cache_interval, self.cache_depth));
+        }
+        if self.pass.token_merge > 0.0 {
+            parts.push(format!("token merging {}", self.pass.token_merge));
+        }
+        if self.pass.products != Products::F32 {
+            parts.push(format!("{} products", self.pass.products.name()));
+        }
+        if parts.is_empty() { "none".into() } else { parts.join(", ") }
     }
 }
 
@@ -651,48 +739,28 @@ impl MultiViewPipeline {
         Ok(Tensor::from_data(TensorData::new(labels, [2 * NUM_VIEWS * draws, dim]), device))
     }
 
-    /// The guided noise prediction for latents `[12·k, c, h, w]` (`k` draws as [`join_draws`]
-    /// lays them out: `[normal × 6 × k, colour × 6 × k]`) at timestep `t`.
-    ///
-    /// The unconditional branch (zero image embedding, zero condition latent) and the
-    /// conditional one are two UNet evaluations of the whole batch, one after the other. The
-    /// reference batches them as 24 images `[normal uncond, normal cond, colour uncond, colour
-    /// cond]`; every attention of the UNet stays inside one branch (multi-view attention
-    /// within a domain's 6 views, cross-domain attention between view `i` of the normal and
-    /// the colour half), so the numbers are the same, and the activations of one branch at a
-    /// time need half the memory.
-    fn predict(
-        &self,
-        x: Tensor<4>,
-        t: usize,
-        cond: &Conditioning,
-        labels: &Tensor<2>,
-        guidance: f64,
-    ) -> Result<Tensor<4>, Error> {
-        // On a worker of rayon's pool, which the CPU kernels share (see `cpu_pool`).
-        crate::kernels::pool::on_pool(|| {
-            let n = x.dims()[0];
-            let cond_latent = cond.latent.clone().repeat_dim(0, n);
-            let [_, d] = cond.embeds.dims();
-            let context: Tensor<3> = cond.embeds.clone().reshape([1, 1, d]).repeat_dim(0, n);
-            let timestep = [t as f32];
-            debug_assert_eq!(labels.dims()[0], n, "labels of the [normal, colour] batch");
-            let conditional = self.unet.forward(
-                Tensor::cat(vec![x.clone(), cond_latent.clone()], 1),
-                &timestep,
-                context.clone(),
-                Some(labels.clone()),
-            )?;
-            if guidance == 1.0 {
-                return Ok(conditional);
-            }
-            let unconditional = self.unet.forward(
-                Tensor::cat(vec![x, cond_latent.zeros_like()], 1),
-                &timestep,
-                context.zeros_like(),
-                Some(labels.clone()),
-            )?;
-            Ok(classifier_free_guidance(unconditional, conditional, guidance))
+    /// The model of a sampling loop over `draws` draws: the guided noise prediction step by
+    /// step, with the options' accelerations.
+    fn denoiser<'a>(
+        &'a self,
+        cond: &'a Conditioning,
+        draws: usize,
+        options: &'a SampleOptions,
+        device: &Device,
+    ) -> Result<Denoiser<'a>, Error> {
+        let labels = self.class_labels(options.camera, draws, device)?;
+        let caches = (options.cache_interval > 1).then(|| {
+            let cache = FeatureCache::new(options.cache_depth);
+            [cache.clone(), cache]
+        });
+        Ok(Denoiser {
+            pipeline: self,
+            cond,
+            labels,
+            options,
+            caches,
+            filled_at: [None; 2],
+            context: compute::current().with_settings(options.pass),
         })
     }
 
@@ -706,6 +774,18 @@ impl MultiViewPipeline {
             return Err(Error::invalid(
                 "conditioning latent",
                 format!("[1, {c}, {h}, {w}] (found {:?})", cond.latent.dims()),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Checks that the UNet has the skip a DeepCache run starts its shallow branch at.
+    fn check_cache_depth(&self, options: &SampleOptions) -> Result<(), Error> {
+        let skips = self.unet.skip_count();
+        if options.cache_interval > 1 && options.cache_depth >= skips {
+            return Err(Error::invalid(
+                "cache_depth",
+                format!("a skip of the UNet, 0..{skips} (found {})", options.cache_depth),
             ));
         }
         Ok(())
@@ -734,8 +814,10 @@ impl MultiViewPipeline {
         options: &SampleOptions,
         progress: &mut dyn FnMut(usize, usize),
     ) -> Result<Tensor<4>, Error> {
+        options.validate()?;
         self.check_latents(&noise, "noise", true)?;
         self.check_conditioning(cond)?;
+        self.check_cache_depth(options)?;
         let mut latents = self.sample_draws(vec![noise], &[options.seed], cond, options, progress)?;
         Ok(latents.remove(0))
     }
@@ -760,7 +842,7 @@ impl MultiViewPipeline {
             return Err(Error::invalid("draws", "at least 1 draw (found 0)"));
         };
         let device = first.device();
-        let labels = self.class_labels(options.camera, draws, &device)?;
+        let mut model = self.denoiser(cond, draws, options, &device)?;
         let per_domain: Vec<Tensor<4>> =
             noises.into_iter().map(|n| if n.dims()[0] == NUM_VIEWS { n.repeat_dim(0, 2) } else { n }).collect();
         let mut x = join_draws(&per_domain);
@@ -769,7 +851,7 @@ impl MultiViewPipeline {
                 let scheduler = DdimScheduler::new(self.scheduler.clone(), options.steps)?;
                 let total = scheduler.timesteps().len();
                 for (i, &t) in scheduler.timesteps().iter().enumerate() {
-                    let eps = self.predict(x.clone(), t, cond, &labels, options.guidance)?;
+                    let eps = model.predict(x.clone(), t, i)?;
                     let variance_noise = (options.eta > 0.0).then(|| {
                         let shape = per_domain[0].dims();
                         let per_draw: Vec<Tensor<4>> = seeds
@@ -787,34 +869,14 @@ impl MultiViewPipeline {
             }
             SamplerKind::DpmSolverPlusPlus2M => {
                 let scheduler = DpmSolverMultistepScheduler::new(self.scheduler.clone(), options.steps)?;
-                x = self.sample_multistep(scheduler, x, cond, &labels, options.guidance, progress)?;
+                x = sample_multistep(scheduler, x, &mut model, progress)?;
             }
             SamplerKind::UniPc => {
                 let scheduler = UniPcMultistepScheduler::new(self.scheduler.clone(), options.steps)?;
-                x = self.sample_multistep(scheduler, x, cond, &labels, options.guidance, progress)?;
+                x = sample_multistep(scheduler, x, &mut model, progress)?;
             }
         }
         Ok(split_draws(x, draws))
-    }
-
-    /// The sampling loop of a multistep solver from `x` at its first timestep:
-    /// `progress(step, steps)` after every step.
-    fn sample_multistep(
-        &self,
-        mut scheduler: impl MultistepScheduler,
-        mut x: Tensor<4>,
-        cond: &Conditioning,
-        labels: &Tensor<2>,
-        guidance: f64,
-        progress: &mut dyn FnMut(usize, usize),
-    ) -> Result<Tensor<4>, Error> {
-        let timesteps = scheduler.run_timesteps().to_vec();
-        for (i, &t) in timesteps.iter().enumerate() {
-            let eps = self.predict(x.clone(), t, cond, labels, guidance)?;
-            x = scheduler.step(eps, t, x)?;
-            progress(i + 1, timesteps.len());
-        }
-        Ok(x)
     }
 
     /// DDIM inversion of clean latents `[12, c, h, w]` (`[normal × 6, colour × 6]`) to the
@@ -833,8 +895,9 @@ impl MultiViewPipeline {
         self.check_latents(&latents, "latents", false)?;
         self.check_conditioning(cond)?;
         let inverse = DdimInverseScheduler::new(self.scheduler.clone(), steps)?;
-        let labels = self.class_labels(camera, 1, &latents.device())?;
-        ddim_invert(&inverse, latents, refinements, |x, t| self.predict(x, t, cond, &labels, 1.0))
+        let options = SampleOptions { camera, guidance: 1.0, ..SampleOptions::default() };
+        let mut model = self.denoiser(cond, 1, &options, &latents.device())?;
+        ddim_invert(&inverse, latents, refinements, |x, t| model.predict(x, t, 0))
     }
 
     /// Decodes latents `[12, c, h, w]` into the 6 normal and 6 colour images (one image at a
@@ -885,10 +948,9 @@ impl MultiViewPipeline {
         device: &Device,
         progress: &mut dyn FnMut(usize, usize),
     ) -> Result<GeneratedViews, Error> {
-        if options.draws == 0 {
-            return Err(Error::invalid("draws", "at least 1 draw (found 0)"));
-        }
+        options.validate()?;
         self.check_conditioning(cond)?;
+        self.check_cache_depth(options)?;
         // Grown pass by pass: `draws` is the caller's number, not memory to claim up front.
         let mut draws = Vec::new();
         let mut first = 0;
@@ -910,6 +972,100 @@ impl MultiViewPipeline {
         }
         GeneratedViews::consensus(&draws)
     }
+}
+
+/// The model of one sampling loop: the guided noise prediction of [`MultiViewPipeline`] for a
+/// batch of draws, with the accelerations of its [`SampleOptions`] — guidance only inside
+/// the guidance interval, DeepCache's feature caches (one per guidance branch), and the pass
+/// settings carried to the thread the passes run on.
+struct Denoiser<'a> {
+    pipeline: &'a MultiViewPipeline,
+    cond: &'a Conditioning,
+    labels: Tensor<2>,
+    options: &'a SampleOptions,
+    /// DeepCache's features of the conditional and the unconditional branch.
+    caches: Option<[FeatureCache; 2]>,
+    /// The step at which each branch's cache was last filled by a full pass.
+    filled_at: [Option<usize>; 2],
+    context: compute::Context,
+}
+
+impl Denoiser<'_> {
+    /// The guided noise prediction for latents `[12·k, c, h, w]` (`k` draws as
+    /// [`join_draws`] lays them out: `[normal × 6 × k, colour × 6 × k]`) at timestep `t`, step
+    /// `step` of the loop.
+    ///
+    /// The unconditional branch (zero image embedding, zero condition latent) and the
+    /// conditional one are two UNet evaluations of the whole batch, one after the other. The
+    /// reference batches them as 24 images `[normal uncond, normal cond, colour uncond, colour
+    /// cond]`; every attention of the UNet stays inside one branch (multi-view attention
+    /// within a domain's 6 views, cross-domain attention between view `i` of the normal and
+    /// the colour half), so the numbers are the same, and the activations of one branch at a
+    /// time need half the memory. Outside the guidance interval only the conditional branch
+    /// runs. With DeepCache, a step that is not a multiple of the cache interval reuses each
+    /// branch's deep features if that branch ran a full pass since the last multiple.
+    fn predict(&mut self, x: Tensor<4>, t: usize, step: usize) -> Result<Tensor<4>, Error> {
+        let options = self.options;
+        let guided = options.guided_at(t, self.pipeline.scheduler.num_train_timesteps);
+        let last_full = step - step % options.cache_interval.max(1);
+        let reuse = |filled: Option<usize>| step % options.cache_interval.max(1) != 0 && filled >= Some(last_full);
+        let reuse = [reuse(self.filled_at[0]), reuse(self.filled_at[1])];
+        for (branch, filled) in self.filled_at.iter_mut().enumerate() {
+            if self.caches.is_some() && !reuse[branch] && (branch == 0 || guided) {
+                *filled = Some(step);
+            }
+        }
+        let (unet, cond, labels) = (&self.pipeline.unet, self.cond, &self.labels);
+        let caches = &mut self.caches;
+        let context = self.context.clone();
+        // On a worker of rayon's pool, which the CPU kernels share (see `cpu_pool`), with this
+        // loop's pass settings.
+        crate::kernels::pool::on_pool(move || {
+            compute::within(context, || {
+                let n = x.dims()[0];
+                let cond_latent = cond.latent.clone().repeat_dim(0, n);
+                let [_, d] = cond.embeds.dims();
+                let context: Tensor<3> = cond.embeds.clone().reshape([1, 1, d]).repeat_dim(0, n);
+                let timestep = [t as f32];
+                debug_assert_eq!(labels.dims()[0], n, "labels of the [normal, colour] batch");
+                let mut pass = |sample: Tensor<4>, context: Tensor<3>, branch: usize| match caches {
+                    Some(caches) => unet.forward_cached(
+                        sample,
+                        &timestep,
+                        context,
+                        Some(labels.clone()),
+                        &UNetExtra::default(),
+                        &mut caches[branch],
+                        reuse[branch],
+                    ),
+                    None => unet.forward(sample, &timestep, context, Some(labels.clone())),
+                };
+                let conditional = pass(Tensor::cat(vec![x.clone(), cond_latent.clone()], 1), context.clone(), 0)?;
+                if !guided {
+                    return Ok(conditional);
+                }
+                let unconditional = pass(Tensor::cat(vec![x, cond_latent.zeros_like()], 1), context.zeros_like(), 1)?;
+                Ok(classifier_free_guidance(unconditional, conditional, options.guidance))
+            })
+        })
+    }
+}
+
+/// The sampling loop of a multistep solver from `x` at its first timestep:
+/// `progress(step, steps)` after every step.
+fn sample_multistep(
+    mut scheduler: impl MultistepScheduler,
+    mut x: Tensor<4>,
+    model: &mut Denoiser<'_>,
+    progress: &mut dyn FnMut(usize, usize),
+) -> Result<Tensor<4>, Error> {
+    let timesteps = scheduler.run_timesteps().to_vec();
+    for (i, &t) in timesteps.iter().enumerate() {
+        let eps = model.predict(x.clone(), t, i)?;
+        x = scheduler.step(eps, t, x)?;
+        progress(i + 1, timesteps.len());
+    }
+    Ok(x)
 }
 
 /// Draws `[12, c, h, w]` each (`[normal × 6, colour × 6]`) laid out as one UNet batch of
