@@ -95,6 +95,7 @@ pub use models::controlnet::ControlNet;
 pub use models::ip_adapter::ImageProjection;
 pub use models::unet::{ControlResiduals, FeatureCache, UNet, UNetExtra};
 pub use models::vae::Vae;
+pub use pipelines::acceleration::Acceleration;
 pub use pipelines::guidance::{classifier_free_guidance, gaussian_noise};
 pub use pipelines::multiview::{
     CameraType, Conditioning, Domain, GeneratedViews, MultiViewPipeline, SampleOptions, prepare_input,

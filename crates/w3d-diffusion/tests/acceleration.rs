@@ -9,7 +9,7 @@ use common::{fixture, max_abs_diff, values};
 use w3d_diffusion::compute::{self, PassSettings, Work};
 use w3d_diffusion::models::unet::FeatureCache;
 use w3d_diffusion::{
-    Conditioning, DdimScheduler, MultiViewPipeline, SampleOptions, SamplerKind, Tensor, UNetExtra,
+    Acceleration, Conditioning, DdimScheduler, MultiViewPipeline, SampleOptions, SamplerKind, Tensor, UNetExtra,
     classifier_free_guidance, prepare_input, switcher_labels,
 };
 
@@ -114,7 +114,8 @@ fn deep_cache_skips_the_deep_layers_between_full_passes() {
     for sampler in [SamplerKind::Ddim, SamplerKind::DpmSolverPlusPlus2M] {
         let base = SampleOptions { sampler, steps: 6, guidance: 2.0, eta: 0.0, seed: 9, ..SampleOptions::default() };
         let (reference, full) = sample(&pipeline, &cond, &base);
-        let cached_options = SampleOptions { cache_interval: 3, cache_depth: 1, ..base };
+        let cached_options =
+            SampleOptions { acceleration: Acceleration::default().with_cache_interval(3).with_cache_depth(1), ..base };
         let (cached, work) = sample(&pipeline, &cond, &cached_options);
         // 6 steps × 2 branches; steps 0 and 3 full (8 ResNets), the other 4 from skip 1 (3 ResNets).
         assert_eq!(full.resnet_blocks, 6 * 2 * 8);
@@ -128,7 +129,11 @@ fn deep_cache_skips_the_deep_layers_between_full_passes() {
         eprintln!("{sampler:?}: DeepCache every 3 from skip 1 moves the latents by {diff:.4} (max abs)");
         assert!(diff > 0.0 && diff < 1.3, "{sampler:?}: {diff}");
         // Interval 1 is the reference, to the bit.
-        let (same, _) = sample(&pipeline, &cond, &SampleOptions { cache_interval: 1, cache_depth: 2, ..base });
+        let (same, _) = sample(
+            &pipeline,
+            &cond,
+            &SampleOptions { acceleration: Acceleration::default().with_cache_depth(2), ..base },
+        );
         assert_eq!(values(same), values(reference));
     }
 }
@@ -138,11 +143,11 @@ fn guidance_outside_its_interval_runs_the_conditional_branch_alone() {
     let (pipeline, cond) = tiny();
     let base = SampleOptions { steps: 5, guidance: 2.0, eta: 0.0, seed: 4, ..SampleOptions::default() };
     let (reference, _) = sample(&pipeline, &cond, &base);
-    let options = SampleOptions { guidance_interval: [0.3, 0.7], ..base };
+    let options = SampleOptions { acceleration: Acceleration::default().with_guidance_interval([0.3, 0.7]), ..base };
     let (limited, work) = sample(&pipeline, &cond, &options);
     let scheduler = DdimScheduler::new(pipeline.scheduler().clone(), 5).unwrap();
     let train = pipeline.scheduler().num_train_timesteps;
-    let guided = scheduler.timesteps().iter().filter(|&&t| options.guided_at(t, train)).count();
+    let guided = scheduler.timesteps().iter().filter(|&&t| options.acceleration.guided_at(t, train)).count();
     assert_eq!(guided, 2, "timesteps {:?}", scheduler.timesteps());
     assert_eq!(work.unet_passes, (5 + guided) as u64);
     let diff = max_abs_diff(limited, reference.clone());
@@ -150,12 +155,19 @@ fn guidance_outside_its_interval_runs_the_conditional_branch_alone() {
     // Measured 1.20 (2026-12-07): the random tiny model's two branches differ a lot.
     assert!(diff > 0.0 && diff < 2.5, "{diff}");
     // An empty interval is guidance 1; [0, 1] is the reference.
-    let (none, work) = sample(&pipeline, &cond, &SampleOptions { guidance_interval: [0.0, 0.0], ..base });
+    let (none, work) = sample(
+        &pipeline,
+        &cond,
+        &SampleOptions { acceleration: Acceleration::default().with_guidance_interval([0.0, 0.0]), ..base },
+    );
     let (unguided, _) = sample(&pipeline, &cond, &SampleOptions { guidance: 1.0, ..base });
     assert_eq!(work.unet_passes, 5);
     assert_eq!(values(none), values(unguided));
     // Combined with DeepCache: the unconditional branch fills its own cache when it first runs.
-    let both = SampleOptions { guidance_interval: [0.3, 0.7], cache_interval: 2, ..base };
+    let both = SampleOptions {
+        acceleration: Acceleration::default().with_guidance_interval([0.3, 0.7]).with_cache_interval(2),
+        ..base
+    };
     let (_, work) = sample(&pipeline, &cond, &both);
     assert_eq!(work.unet_passes, 7);
     assert!(work.resnet_blocks < 7 * 8, "{work:?}");
@@ -165,13 +177,14 @@ fn guidance_outside_its_interval_runs_the_conditional_branch_alone() {
 fn nonsensical_settings_are_refused_before_any_pass() {
     let (pipeline, cond) = tiny();
     let base = SampleOptions { steps: 2, ..SampleOptions::default() };
+    let with = |acceleration| SampleOptions { acceleration, ..base };
     let cases: [(SampleOptions, &str); 6] = [
-        (SampleOptions { cache_interval: 0, ..base }, "cache_interval"),
-        (SampleOptions { cache_interval: 51, ..base }, "cache_interval"),
-        (SampleOptions { guidance_interval: [-0.1, 1.0], ..base }, "guidance_interval"),
-        (SampleOptions { guidance_interval: [0.8, 0.2], ..base }, "guidance_interval"),
-        (SampleOptions { pass: PassSettings::default().with_token_merge(0.95), ..base }, "token_merge"),
-        (SampleOptions { cache_interval: 2, cache_depth: 4, ..base }, "cache_depth"),
+        (with(Acceleration::default().with_cache_interval(0)), "cache_interval"),
+        (with(Acceleration::default().with_cache_interval(51)), "cache_interval"),
+        (with(Acceleration::default().with_guidance_interval([-0.1, 1.0])), "guidance_interval"),
+        (with(Acceleration::default().with_guidance_interval([0.8, 0.2])), "guidance_interval"),
+        (with(Acceleration::default().with_pass(PassSettings::default().with_token_merge(0.95))), "token_merge"),
+        (with(Acceleration::default().with_cache_interval(2).with_cache_depth(4)), "cache_depth"),
     ];
     for (options, field) in cases {
         let noise = pipeline.initial_noise(1, &w3d_diffusion::default_device());
@@ -180,7 +193,51 @@ fn nonsensical_settings_are_refused_before_any_pass() {
         assert!(err.contains(field), "{field}: {err}");
         assert_eq!(work.unet_passes, 0, "{field}");
     }
-    assert_eq!(SampleOptions::default().accelerations(), "none");
-    let all = SampleOptions { guidance_interval: [0.1, 0.8], cache_interval: 3, ..base };
-    assert_eq!(all.accelerations(), "guidance in [0.1, 0.8], DeepCache every 3 from skip 1");
+    assert_eq!(SampleOptions::default().acceleration.describe(), "none");
+}
+
+#[test]
+fn the_enhancer_skips_the_unconditional_rows_and_the_deep_layers_it_claims() {
+    use w3d_diffusion::pipelines::enhancer::{EnhancerConditioning, EnhancerOptions, EnhancerPipeline};
+    let device = w3d_diffusion::default_device();
+    let pipeline = EnhancerPipeline::from_dir(fixture("enhancer"), &device).unwrap();
+    let grids = (w3d_diffusion::gaussian_noise([2, 3, 64, 64], 1, &device) * 0.2 + 0.5).clamp(0.0, 1.0);
+    let ip_image = w3d_core::Image::filled(32, 32, 3, 0.5).unwrap();
+    let options = EnhancerOptions::default();
+    let conditioning = EnhancerConditioning {
+        prompts: pipeline.encode_prompts(&options).unwrap(),
+        image: pipeline.image_tokens(&ip_image, &options, &device).unwrap(),
+    };
+    let init = pipeline.encode_grids(grids.clone(), w3d_diffusion::gaussian_noise([2, 4, 8, 8], 2, &device)).unwrap();
+    let noise = w3d_diffusion::gaussian_noise([2, 4, 8, 8], 3, &device);
+    let run = |acceleration: Acceleration| {
+        let options = options.clone().with_acceleration(acceleration);
+        compute::count_work(|| {
+            pipeline
+                .denoise(init.clone(), noise.clone(), grids.clone(), &conditioning, &options, &mut |_, _| {})
+                .unwrap()
+        })
+    };
+    let (reference, full) = run(Acceleration::default());
+    assert_eq!(full.unet_passes, 10);
+    // Guidance only at noise levels ≥ 0.15: of the timesteps 200, 180, …, 20, three keep it;
+    // the other seven run the two conditional rows of four, half the attention.
+    let (limited, work) = run(Acceleration::default().with_guidance_interval([0.15, 1.0]));
+    assert_eq!(full.attention_scores % 20, 0);
+    assert_eq!(work.attention_scores, full.attention_scores / 10 * 3 + full.attention_scores / 20 * 7);
+    let diff = max_abs_diff(limited, reference.clone());
+    eprintln!("enhancer, guidance in [0.15, 1]: latents moved by {diff:.4} (max abs)");
+    // Measured 0.99 (2026-12-07): guidance 3 on random weights moves a lot.
+    assert!(diff > 0.0 && diff < 2.0, "{diff}");
+    // DeepCache every 2 steps from skip 1: steps 1, 3, … run the UNet and the ControlNet only
+    // as far as skip 1 and back.
+    let (cached, work) = run(Acceleration::default().with_cache_interval(2));
+    assert!(work.resnet_blocks < full.resnet_blocks, "{work:?} against {full:?}");
+    assert_eq!(work.unet_passes, full.unet_passes);
+    let diff = max_abs_diff(cached, reference.clone());
+    eprintln!("enhancer, DeepCache every 2: latents moved by {diff:.4} (max abs)");
+    assert!(diff > 0.0 && diff < 0.5, "{diff}");
+    // Off is the reference to the bit.
+    let (same, _) = run(Acceleration::default().with_cache_depth(3));
+    assert_eq!(values(same), values(reference));
 }

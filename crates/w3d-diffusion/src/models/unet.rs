@@ -322,6 +322,11 @@ impl FeatureCache {
         self.feature.is_some()
     }
 
+    /// The batch size of the cached feature (a cached pass needs the same), if filled.
+    pub fn batch(&self) -> Option<usize> {
+        self.feature.as_ref().map(|f| f.dims()[0])
+    }
+
     /// Forgets the cached feature (the next pass is a full one).
     pub fn clear(&mut self) {
         self.feature = None;

@@ -25,6 +25,7 @@ use std::path::Path;
 use burn::tensor::{Device, Tensor, TensorData};
 use w3d_core::{Error, Image};
 
+use crate::compute;
 use crate::loading::config::SchedulerConfig;
 use crate::loading::weights::WeightStorage;
 use crate::models::blocks::IpTokens;
@@ -33,9 +34,9 @@ use crate::models::clip::tokenizer::ClipTokenizer;
 use crate::models::clip::vision::{ClipVision, preprocess, preprocess_rescaled_twice};
 use crate::models::controlnet::ControlNet;
 use crate::models::ip_adapter::ImageProjection;
-use crate::models::unet::ControlResiduals;
-use crate::models::unet::{UNet, UNetExtra};
+use crate::models::unet::{ControlResiduals, FeatureCache, UNet, UNetExtra};
 use crate::models::vae::Vae;
+use crate::pipelines::acceleration::Acceleration;
 use crate::pipelines::guidance::{classifier_free_guidance, gaussian_noise};
 use crate::schedulers::{UniPcMultistepScheduler, img2img_begin_index};
 
@@ -74,6 +75,11 @@ pub struct EnhancerOptions {
     /// pipeline does (their `[0, 1]` image is divided by 255 again, so CLIP sees an almost
     /// black image — what their ControlNet was trained with); on by default.
     pub ip_image_rescaled_twice: bool,
+    /// Training-free accelerations: guidance only inside an interval of noise levels (the
+    /// other steps run the conditional rows alone), DeepCache over the UNet and the ControlNet
+    /// together (a cached step runs both only as far as the cache depth's skip), bf16
+    /// products, token merging. None by default.
+    pub acceleration: Acceleration,
 }
 
 impl Default for EnhancerOptions {
@@ -90,6 +96,7 @@ impl Default for EnhancerOptions {
             negative_prompt: String::new(),
             reproduce_upstream_cfg_bugs: false,
             ip_image_rescaled_twice: true,
+            acceleration: Acceleration::default(),
         }
     }
 }
@@ -109,6 +116,7 @@ impl EnhancerOptions {
         /// These options with [`reproduce_upstream_cfg_bugs`](Self::reproduce_upstream_cfg_bugs)
         /// set to `value`.
         with_upstream_cfg_bugs(reproduce_upstream_cfg_bugs: bool);
+        with_acceleration(acceleration: Acceleration);
     }
 }
 
@@ -377,26 +385,97 @@ impl EnhancerPipeline {
         let control_rows =
             Tensor::cat(vec![colour_control.clone(), colour_control, normal_control.clone(), normal_control], 0);
 
+        let accel = &options.acceleration;
+        accel.validate()?;
+        let skips = self.unet.skip_count();
+        if accel.cache_interval > 1 && accel.cache_depth >= skips {
+            return Err(Error::invalid(
+                "cache_depth",
+                format!("a skip of the UNet, 0..{skips} (found {})", accel.cache_depth),
+            ));
+        }
+        // The conditional rows alone, for steps outside the guidance interval: colour and
+        // normal, in both the UNet's and the ControlNet's order.
+        let cond_rows = |t: &Tensor<3>, rows: [usize; 2]| {
+            let [_, tokens, width] = t.dims();
+            Tensor::cat(rows.iter().map(|&r| t.clone().slice([r..r + 1, 0..tokens, 0..width])).collect(), 0)
+        };
+        let cond_text = cond_rows(&unet_text, [2, 3]);
+        let cond_ip = IpTokens { tokens: cond_rows(&ip.tokens, [2, 3]), scale: ip.scale };
+        let cond_control = {
+            let [_, cc, ch, cw] = control_rows.dims();
+            Tensor::cat(
+                vec![
+                    control_rows.clone().slice([1..2, 0..cc, 0..ch, 0..cw]),
+                    control_rows.clone().slice([3..4, 0..cc, 0..ch, 0..cw]),
+                ],
+                0,
+            )
+        };
+        let mut cache = FeatureCache::new(accel.cache_depth);
+        let mut last_full = None;
+        let train_timesteps = self.scheduler.num_train_timesteps;
+
         let total = timesteps.len();
         for (done, &t) in timesteps.iter().enumerate() {
+            let guided = accel.guided_at(t, train_timesteps);
+            let rows = if guided { 4 } else { 2 };
+            // DeepCache: a step that is not a multiple of the interval reuses the deep features
+            // of the last full pass, if that pass had the same rows.
+            let reuse = accel.cache_interval > 1
+                && done % accel.cache_interval != 0
+                && cache.batch() == Some(rows)
+                && last_full.is_some_and(|f| f >= done - done % accel.cache_interval);
             let colour = latents.clone().slice([0..1, 0..c, 0..h, 0..w]);
             let normal = latents.clone().slice([1..2, 0..c, 0..h, 0..w]);
-            let guidance_rows = Tensor::cat(vec![colour.clone(), normal.clone(), colour.clone(), normal.clone()], 0);
-            let domain_rows = Tensor::cat(vec![colour.clone(), colour, normal.clone(), normal], 0);
             let tf = [t as f32];
-            let residuals = self.controlnet.forward(
-                domain_rows,
-                &tf,
-                control_text.clone(),
-                control_rows.clone(),
-                options.control_scale,
-            )?;
-            let residuals = to_guidance_order(residuals, options.reproduce_upstream_cfg_bugs);
-            let extra = UNetExtra { control: Some(residuals), ip: Some(ip.clone()) };
-            let out = self.unet.forward_with(guidance_rows, &tf, unet_text.clone(), None, &extra)?;
-            let uncond = out.clone().slice([0..2, 0..c, 0..h, 0..w]);
-            let cond = out.slice([2..4, 0..c, 0..h, 0..w]);
-            let eps = classifier_free_guidance(uncond, cond, options.guidance);
+            let eps = compute::with_settings(accel.pass, || -> Result<Tensor<4>, Error> {
+                let (unet_rows, domain_rows, text, control_text, control_rows, ip) = if guided {
+                    let guidance_rows =
+                        Tensor::cat(vec![colour.clone(), normal.clone(), colour.clone(), normal.clone()], 0);
+                    let domain_rows = Tensor::cat(vec![colour.clone(), colour, normal.clone(), normal], 0);
+                    (guidance_rows, domain_rows, &unet_text, &control_text, &control_rows, &ip)
+                } else {
+                    let both = Tensor::cat(vec![colour, normal], 0);
+                    (both.clone(), both, &cond_text, &cond_text, &cond_control, &cond_ip)
+                };
+                let residuals = if reuse {
+                    self.controlnet.forward_shallow(
+                        domain_rows,
+                        &tf,
+                        control_text.clone(),
+                        control_rows.clone(),
+                        options.control_scale,
+                        accel.cache_depth,
+                    )?
+                } else {
+                    self.controlnet.forward(
+                        domain_rows,
+                        &tf,
+                        control_text.clone(),
+                        control_rows.clone(),
+                        options.control_scale,
+                    )?
+                };
+                // Two conditional rows are in the same order for both models.
+                let residuals =
+                    if guided { to_guidance_order(residuals, options.reproduce_upstream_cfg_bugs) } else { residuals };
+                let extra = UNetExtra { control: Some(residuals), ip: Some(ip.clone()) };
+                let out = if accel.cache_interval > 1 {
+                    self.unet.forward_cached(unet_rows, &tf, text.clone(), None, &extra, &mut cache, reuse)?
+                } else {
+                    self.unet.forward_with(unet_rows, &tf, text.clone(), None, &extra)?
+                };
+                if !guided {
+                    return Ok(out);
+                }
+                let uncond = out.clone().slice([0..2, 0..c, 0..h, 0..w]);
+                let cond = out.slice([2..4, 0..c, 0..h, 0..w]);
+                Ok(classifier_free_guidance(uncond, cond, options.guidance))
+            })?;
+            if !reuse {
+                last_full = Some(done);
+            }
             latents = scheduler.step(eps, t, latents)?;
             progress(done + 1, total);
         }

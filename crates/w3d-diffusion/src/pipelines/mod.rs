@@ -1,7 +1,8 @@
 //! Pipelines over the models and samplers: classifier-free guidance and seeded noise
-//! ([`guidance`]), one RGBA image → six views × {normal, colour} ([`multiview`]), and the
+//! ([`guidance`]), training-free accelerations of a sampling loop ([`acceleration`]), one RGBA image → six views × {normal, colour} ([`multiview`]), and the
 //! refinement stage's enhancer ([`enhancer`]: one joint img2img call over 2×2 grids of views).
 
+pub mod acceleration;
 pub mod guidance;
 
 pub mod multiview;

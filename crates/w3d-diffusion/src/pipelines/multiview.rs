@@ -39,12 +39,13 @@ use burn::tensor::{Device, Tensor, TensorData};
 use image::imageops::FilterType;
 use w3d_core::{Error, Image, ViewImages, ViewRig, ViewSet};
 
-use crate::compute::{self, PassSettings, Products};
+use crate::compute;
 use crate::loading::config::SchedulerConfig;
 use crate::loading::weights::{Precision, WeightStorage};
 use crate::models::clip::vision::{ClipVision, preprocess as clip_preprocess};
 use crate::models::unet::{FeatureCache, UNet, UNetExtra};
 use crate::models::vae::Vae;
+use crate::pipelines::acceleration::Acceleration;
 use crate::pipelines::guidance::{classifier_free_guidance, gaussian_noise};
 use crate::schedulers::{
     DdimInverseScheduler, DdimScheduler, DpmSolverMultistepScheduler, MultistepScheduler, SamplerKind,
@@ -290,27 +291,10 @@ pub struct SampleOptions {
     /// generation (up to [`DRAWS_PER_PASS`] share the UNet's passes), and with a small model a
     /// few draws lower the normal error (docs/training.md).
     pub draws: usize,
-    /// Where the unconditional branch of classifier-free guidance runs, as noise levels `t/T`
-    /// (`T` the training schedule's length): steps whose timestep lies outside `[lo, hi]` run
-    /// the conditional branch alone (guidance 1) and cost half a guided step (Kynkäänniemi et
-    /// al. 2024, "Applying guidance in a limited interval"). `[0, 1]`: every step, the
-    /// reference.
-    pub guidance_interval: [f64; 2],
-    /// DeepCache (Ma et al. 2023): one full UNet pass every `cache_interval` steps, and in
-    /// between only the shallow branch from skip [`SampleOptions::cache_depth`], the deep
-    /// features taken from the last full pass ([`crate::models::unet::FeatureCache`]). 1: every
-    /// pass full, the reference.
-    pub cache_interval: usize,
-    /// The skip the shallow branch of a cached pass starts at (see
-    /// [`crate::models::unet::FeatureCache`]: 0 is `conv_in`; 1 adds the first down layer).
-    pub cache_depth: usize,
-    /// How the UNet passes compute: bf16 products, token merging ([`PassSettings`]).
-    pub pass: PassSettings,
+    /// Training-free accelerations (guidance interval, DeepCache, bf16 products, token
+    /// merging); the default is none of them, the reference arithmetic.
+    pub acceleration: Acceleration,
 }
-
-/// The highest DeepCache interval [`SampleOptions::validate`] accepts: a full pass at least
-/// every this many steps.
-pub const MAX_CACHE_INTERVAL: usize = 50;
 
 impl Default for SampleOptions {
     /// The Wonder3D++ defaults: DDIM, 50 steps, guidance 2 at every step, eta 1, orthographic,
@@ -324,19 +308,15 @@ impl Default for SampleOptions {
             camera: CameraType::Orthographic,
             seed: 42,
             draws: 1,
-            guidance_interval: [0.0, 1.0],
-            cache_interval: 1,
-            cache_depth: 1,
-            pass: PassSettings::default(),
+            acceleration: Acceleration::default(),
         }
     }
 }
 
 impl SampleOptions {
     /// Checks the settings that need no model: at least 1 step and 1 draw, a finite
-    /// guidance scale, a guidance interval `0 ≤ lo ≤ hi ≤ 1`, a cache interval in
-    /// `1..=`[`MAX_CACHE_INTERVAL`], and valid [`PassSettings`]. (The cache depth is checked
-    /// against the UNet's skips when sampling starts.)
+    /// guidance scale and a valid [`Acceleration`] (its cache depth is checked against the
+    /// UNet's skips when sampling starts).
     pub fn validate(&self) -> Result<(), Error> {
         if self.steps == 0 {
             return Err(Error::invalid("steps", "at least 1 sampling step (found 0)"));
@@ -347,50 +327,7 @@ impl SampleOptions {
         if !self.guidance.is_finite() {
             return Err(Error::invalid("guidance", format!("a finite scale (found {})", self.guidance)));
         }
-        let [lo, hi] = self.guidance_interval;
-        if !(0.0..=1.0).contains(&lo) || !(0.0..=1.0).contains(&hi) || lo > hi {
-            return Err(Error::invalid(
-                "guidance_interval",
-                format!("noise levels lo ≤ hi within [0, 1] (found [{lo}, {hi}])"),
-            ));
-        }
-        if !(1..=MAX_CACHE_INTERVAL).contains(&self.cache_interval) {
-            return Err(Error::invalid(
-                "cache_interval",
-                format!(
-                    "a full UNet pass every 1..={MAX_CACHE_INTERVAL} steps (1: no caching; found {})",
-                    self.cache_interval
-                ),
-            ));
-        }
-        self.pass.validate()
-    }
-
-    /// Whether step `t` (a training timestep of a schedule of `train_timesteps`) runs the
-    /// unconditional branch: guidance other than 1 and `t/T` inside the guidance interval.
-    pub fn guided_at(&self, t: usize, train_timesteps: usize) -> bool {
-        let level = t as f64 / train_timesteps.max(1) as f64;
-        self.guidance != 1.0 && self.guidance_interval[0] <= level && level <= self.guidance_interval[1]
-    }
-
-    /// A short description of the accelerations in use, for run reports and logs: e.g.
-    /// `"guidance in [0.1, 0.8], DeepCache every 3 from skip 1, bf16 products"`, or
-    /// `"none"`.
-    pub fn accelerations(&self) -> String {
-        let mut parts = Vec::new();
-        if self.guidance_interval != [0.0, 1.0] && self.guidance != 1.0 {
-            parts.push(format!("guidance in [{}, {}]", self.guidance_interval[0], self.guidance_interval[1]));
-        }
-        if self.cache_interval > 1 {
-            parts.push(format!("DeepCache every {} from skip {}", self.cache_interval, self.cache_depth));
-        }
-        if self.pass.token_merge > 0.0 {
-            parts.push(format!("token merging {}", self.pass.token_merge));
-        }
-        if self.pass.products != Products::F32 {
-            parts.push(format!("{} products", self.pass.products.name()));
-        }
-        if parts.is_empty() { "none".into() } else { parts.join(", ") }
+        self.acceleration.validate()
     }
 }
 
@@ -749,8 +686,8 @@ impl MultiViewPipeline {
         device: &Device,
     ) -> Result<Denoiser<'a>, Error> {
         let labels = self.class_labels(options.camera, draws, device)?;
-        let caches = (options.cache_interval > 1).then(|| {
-            let cache = FeatureCache::new(options.cache_depth);
+        let caches = (options.acceleration.cache_interval > 1).then(|| {
+            let cache = FeatureCache::new(options.acceleration.cache_depth);
             [cache.clone(), cache]
         });
         Ok(Denoiser {
@@ -760,7 +697,7 @@ impl MultiViewPipeline {
             options,
             caches,
             filled_at: [None; 2],
-            context: compute::current().with_settings(options.pass),
+            context: compute::current().with_settings(options.acceleration.pass),
         })
     }
 
@@ -782,10 +719,11 @@ impl MultiViewPipeline {
     /// Checks that the UNet has the skip a DeepCache run starts its shallow branch at.
     fn check_cache_depth(&self, options: &SampleOptions) -> Result<(), Error> {
         let skips = self.unet.skip_count();
-        if options.cache_interval > 1 && options.cache_depth >= skips {
+        let a = &options.acceleration;
+        if a.cache_interval > 1 && a.cache_depth >= skips {
             return Err(Error::invalid(
                 "cache_depth",
-                format!("a skip of the UNet, 0..{skips} (found {})", options.cache_depth),
+                format!("a skip of the UNet, 0..{skips} (found {})", a.cache_depth),
             ));
         }
         Ok(())
@@ -1006,9 +944,10 @@ impl Denoiser<'_> {
     /// branch's deep features if that branch ran a full pass since the last multiple.
     fn predict(&mut self, x: Tensor<4>, t: usize, step: usize) -> Result<Tensor<4>, Error> {
         let options = self.options;
-        let guided = options.guided_at(t, self.pipeline.scheduler.num_train_timesteps);
-        let last_full = step - step % options.cache_interval.max(1);
-        let reuse = |filled: Option<usize>| step % options.cache_interval.max(1) != 0 && filled >= Some(last_full);
+        let a = &options.acceleration;
+        let guided = options.guidance != 1.0 && a.guided_at(t, self.pipeline.scheduler.num_train_timesteps);
+        let last_full = step - step % a.cache_interval.max(1);
+        let reuse = |filled: Option<usize>| step % a.cache_interval.max(1) != 0 && filled >= Some(last_full);
         let reuse = [reuse(self.filled_at[0]), reuse(self.filled_at[1])];
         for (branch, filled) in self.filled_at.iter_mut().enumerate() {
             if self.caches.is_some() && !reuse[branch] && (branch == 0 || guided) {
