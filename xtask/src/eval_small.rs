@@ -249,6 +249,7 @@ pub(crate) fn run(
             camera,
             seed: 42,
             draws: sampling.draws,
+            ..SampleOptions::default()
         };
         let t = Instant::now();
         let generated = if sampling.independent_noise {

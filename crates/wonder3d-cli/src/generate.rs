@@ -132,6 +132,7 @@ mod with_model {
             camera,
             seed: args.seed,
             draws: args.draws.unwrap_or(defaults.draws),
+            ..SampleOptions::default()
         }
     }
 
