@@ -91,6 +91,7 @@ mod workspace;
 
 // The tasks.
 mod chart;
+mod chart_generation;
 mod curve;
 mod eval_small;
 mod faces_chart;
@@ -209,6 +210,26 @@ enum Task {
     ShipSmall {
         /// Model directory (f32, as train-small writes it).
         #[arg(long, default_value = "target/train-small/model")]
+        model: PathBuf,
+    },
+    /// The speed–quality chart of generation's training-free accelerations
+    /// (`docs/generation_speed_quality.svg`, the table of `docs/benchmarks.md`, "Training-free
+    /// acceleration"): real-size step timings with random weights, and the shipped small
+    /// model's scores on its 7 training objects per setting. Results in
+    /// `target/chart-generation/`; the timing part takes about 6 min, the quality part about
+    /// 4 min per setting and guidance on 2 cores.
+    ChartGeneration {
+        /// Which part: `timing`, `quality`, `chart` or `all`.
+        #[arg(long, default_value = "all")]
+        part: String,
+        /// Only these settings of the quality part (comma-separated names; default: all).
+        #[arg(long)]
+        settings: Option<String>,
+        /// Guidance scales of the quality part (comma-separated).
+        #[arg(long, default_value = "2,1", value_delimiter = ',')]
+        guidance: Vec<f64>,
+        /// The model the quality part scores.
+        #[arg(long, default_value = "assets/model-small")]
         model: PathBuf,
     },
     /// Score the small model: generated views and reconstructed meshes of training objects
@@ -855,6 +876,9 @@ fn main() -> ExitCode {
         Task::TrainSmall { out, quick, resume, phase_steps, decoder_passes, unet_config } => {
             let overrides = train_small::Overrides { phase_steps, decoder_passes, unet_config };
             train_small::run(&out, quick, resume, &overrides)
+        }
+        Task::ChartGeneration { part, settings, guidance, model } => {
+            chart_generation::run(&part, settings.as_deref(), &guidance, &model)
         }
         Task::EvalSmall {
             model,

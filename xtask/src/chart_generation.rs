@@ -1,0 +1,586 @@
+//! `cargo xtask chart-generation`: the speed–quality chart of the training-free accelerations
+//! of generation (`docs/generation_speed_quality.svg` and the table of `docs/benchmarks.md`,
+//! "Training-free acceleration").
+//!
+//! Three parts, each resumable, results in `target/chart-generation/`:
+//! - `timing`: the real-size multi-view model (random f16 weights: time does not depend on the
+//!   values) on this machine — the input's conditioning, one conditional UNet pass of 12
+//!   images whole and as DeepCache's shallow branch, for each pass setting (f32 / bf16
+//!   products, with and without token merging), and the 12 VAE decodes. A setting's
+//!   generation time is assembled from these, step by step, exactly as the sampling loop runs
+//!   its passes (`timing.json`).
+//! - `quality`: the shipped small model on its seven training objects, sampled as the demo
+//!   does (4 draws), at guidance 1 and 2, per setting: normal error, mask IoU, reconstruction
+//!   CD (`quality.jsonl`, one line per setting, guidance and object; a rerun replaces lines).
+//! - `chart`: the SVG and the Markdown table from both files.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use plotters::prelude::*;
+use serde_json::{Value, json};
+use wonder3d::diffusion::compute::{PassSettings, Products};
+use wonder3d::diffusion::{
+    Acceleration, ClipVision, ClipVisionConfig, DdimScheduler, DpmSolverMultistepScheduler, MultiViewPipeline,
+    SampleOptions, SamplerKind, SchedulerConfig, UNet, UNetConfig, UniPcMultistepScheduler, Vae, VaeConfig,
+    WeightStorage,
+};
+use wonder3d::eval::{EvalOptions, evaluate};
+use wonder3d::recon::{Preset, ReconOptions, reconstruct};
+use wonder3d::{CameraType, Image};
+
+use crate::eval_small::{object_name, scored_sample};
+use crate::train_small::TRAIN_MESHES;
+
+fn err(e: impl std::fmt::Display) -> String {
+    e.to_string()
+}
+
+/// One point of the chart: a sampler, its steps and the accelerations.
+#[derive(Clone, Debug)]
+pub(crate) struct Setting {
+    pub name: &'static str,
+    pub sampler: SamplerKind,
+    pub steps: usize,
+    pub acceleration: Acceleration,
+}
+
+/// The guidance interval charted: Kynkäänniemi et al.'s interval for EDM2, σ in (0.28, 5.42],
+/// is t/T ≈ 0.1–0.7 on Stable Diffusion's schedule (ᾱ = 1 / (1 + σ²)).
+pub(crate) const GUIDANCE_INTERVAL: [f64; 2] = [0.1, 0.7];
+
+/// Every setting of the chart: today's default first, every method alone, then combinations.
+pub(crate) fn settings() -> Vec<Setting> {
+    let none = Acceleration::default();
+    let bf16 = PassSettings::default().with_products(Products::Bf16);
+    let dpm = SamplerKind::DpmSolverPlusPlus2M;
+    let unipc = SamplerKind::UniPc;
+    let s = |name, sampler, steps, acceleration| Setting { name, sampler, steps, acceleration };
+    vec![
+        s("dpm20", dpm, 20, none),
+        s("dpm10", dpm, 10, none),
+        s("unipc10", unipc, 10, none),
+        s("unipc8", unipc, 8, none),
+        s("dpm20-cache2", dpm, 20, none.with_cache_interval(2)),
+        s("dpm20-cache3", dpm, 20, none.with_cache_interval(3)),
+        s("dpm20-interval", dpm, 20, none.with_guidance_interval(GUIDANCE_INTERVAL)),
+        s("dpm20-bf16", dpm, 20, none.with_pass(bf16)),
+        s("dpm20-tome", dpm, 20, none.with_pass(PassSettings::default().with_token_merge(0.5))),
+        s("unipc10-cache2", unipc, 10, none.with_cache_interval(2)),
+        s("unipc10-cache2-interval", unipc, 10, none.with_cache_interval(2).with_guidance_interval(GUIDANCE_INTERVAL)),
+        s(
+            "unipc10-cache2-interval-bf16",
+            unipc,
+            10,
+            none.with_cache_interval(2).with_guidance_interval(GUIDANCE_INTERVAL).with_pass(bf16),
+        ),
+        s(
+            "dpm20-cache3-interval-bf16",
+            dpm,
+            20,
+            none.with_cache_interval(3).with_guidance_interval(GUIDANCE_INTERVAL).with_pass(bf16),
+        ),
+    ]
+}
+
+/// The settings `list` names (comma-separated), or all.
+fn pick(list: Option<&str>) -> Result<Vec<Setting>, String> {
+    let all = settings();
+    let Some(list) = list else { return Ok(all) };
+    list.split(',')
+        .map(|name| {
+            all.iter().find(|s| s.name == name.trim()).cloned().ok_or_else(|| {
+                let names: Vec<&str> = all.iter().map(|s| s.name).collect();
+                format!("--settings: no setting {:?} (one of {})", name.trim(), names.join(", "))
+            })
+        })
+        .collect()
+}
+
+fn out_dir() -> PathBuf {
+    crate::workspace::target_dir().join("chart-generation")
+}
+
+/// Runs the parts `part` names (`timing`, `quality`, `chart` or `all`).
+pub(crate) fn run(part: &str, list: Option<&str>, guidances: &[f64], model: &Path) -> Result<(), String> {
+    let picked = pick(list)?;
+    std::fs::create_dir_all(out_dir()).map_err(|e| format!("{}: {e}", out_dir().display()))?;
+    match part {
+        "timing" => timing(),
+        "quality" => quality(&picked, guidances, model),
+        "chart" => chart(),
+        "all" => {
+            timing()?;
+            quality(&picked, guidances, model)?;
+            chart()
+        }
+        other => Err(format!("--part: timing, quality, chart or all (found {other:?})")),
+    }
+}
+
+/// Peak resident memory of this process in bytes (`VmHWM`).
+fn peak_rss() -> f64 {
+    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
+    let kib = status
+        .lines()
+        .find(|l| l.starts_with("VmHWM:"))
+        .and_then(|l| l.split_whitespace().nth(1))
+        .and_then(|v| v.parse::<f64>().ok())
+        .unwrap_or(0.0);
+    kib * 1024.0
+}
+
+fn load_average() -> String {
+    std::fs::read_to_string("/proc/loadavg")
+        .unwrap_or_default()
+        .split_whitespace()
+        .take(3)
+        .collect::<Vec<_>>()
+        .join(" ")
+}
+
+/// The real-size timings (see the module docs).
+fn timing() -> Result<(), String> {
+    let root = crate::workspace::workspace_root();
+    let config = |p: &str| root.join("crates/w3d-diffusion/configs/wonder3d").join(p);
+    let device = wonder3d::diffusion::default_device();
+    let storage = WeightStorage::F16;
+    let t = Instant::now();
+    let unet =
+        UNet::random_with(&UNetConfig::from_file(config("unet_mv/config.json")).map_err(err)?, 1, &device, storage)
+            .map_err(err)?;
+    let vae = Vae::random_with(&VaeConfig::from_file(config("vae/config.json")).map_err(err)?, 2, &device, storage)
+        .map_err(err)?;
+    let clip_config = ClipVisionConfig::from_file(config("image_encoder/config.json")).map_err(err)?;
+    let clip = ClipVision::random_with(&clip_config, 3, &device, storage).map_err(err)?;
+    let scheduler = SchedulerConfig::from_file(config("scheduler/scheduler_config.json")).map_err(err)?;
+    let pipeline = MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)?;
+    eprintln!("real-size models built in {:.1} s (f16 weights, random)", t.elapsed().as_secs_f64());
+
+    let image = Image::filled(256, 256, 3, 0.5).map_err(err)?;
+    let t = Instant::now();
+    let cond = pipeline.condition(&image, &device).map_err(err)?;
+    let condition_s = t.elapsed().as_secs_f64();
+    let noise = pipeline.initial_noise(1, &device);
+    let sample = |options: &SampleOptions| -> Result<(f64, wonder3d::diffusion::Tensor<4>), String> {
+        let t = Instant::now();
+        let latents = pipeline.sample_from(noise.clone(), &cond, options, &mut |_, _| {}).map_err(err)?;
+        let values = latents.clone().into_data().try_to_vec::<f32>().map_err(|e| format!("{e:?}"))?;
+        if !values.iter().all(|v| v.is_finite()) {
+            return Err("non-finite latents".into());
+        }
+        Ok((t.elapsed().as_secs_f64(), latents))
+    };
+    let one = |steps, acceleration| SampleOptions {
+        sampler: SamplerKind::Ddim,
+        steps,
+        guidance: 1.0,
+        eta: 0.0,
+        acceleration,
+        ..SampleOptions::default()
+    };
+    // Warm-up: the first pass pays for pages the later ones reuse.
+    let (warm_s, latents) = sample(&one(1, Acceleration::default()))?;
+    eprintln!("warm-up pass {warm_s:.1} s, load {}", load_average());
+    let t = Instant::now();
+    pipeline.decode(latents, CameraType::Orthographic).map_err(err)?;
+    let decode_s = t.elapsed().as_secs_f64();
+    eprintln!("conditioning {condition_s:.1} s, 12 decodes {decode_s:.1} s");
+
+    let mut passes = Vec::new();
+    let bf16_ok = Products::Bf16.supported();
+    for (products, token_merge) in
+        [(Products::F32, 0.0), (Products::Bf16, 0.0), (Products::F32, 0.5), (Products::Bf16, 0.5)]
+    {
+        if products == Products::Bf16 && !bf16_ok {
+            eprintln!("this CPU has no AVX-512 BF16: bf16 not timed");
+            continue;
+        }
+        let pass = PassSettings::default().with_products(products).with_token_merge(token_merge);
+        let accel = Acceleration::default().with_pass(pass);
+        let (full_s, _) = sample(&one(1, accel))?;
+        let depths: &[usize] = if products == Products::F32 && token_merge == 0.0 { &[1, 2] } else { &[1] };
+        for &depth in depths {
+            let (two_s, _) = sample(&one(2, accel.with_cache_interval(2).with_cache_depth(depth)))?;
+            let shallow_s = (two_s - full_s).max(0.0);
+            eprintln!(
+                "{} products, token merging {token_merge}: full pass {full_s:.1} s, shallow from skip {depth} {shallow_s:.1} s (load {})",
+                products.name(),
+                load_average()
+            );
+            passes.push(json!({
+                "products": products.name(), "token_merge": token_merge, "cache_depth": depth,
+                "full_pass_s": full_s, "shallow_pass_s": shallow_s,
+            }));
+        }
+    }
+    let record = json!({
+        "date": date(), "cpu": crate::workspace::cpu_model(), "threads": rayon_threads(),
+        "model": "Wonder3D++ MV UNet (configs/wonder3d/unet_mv), f16 weights, random; 12 images at 32² a pass",
+        "condition_s": condition_s, "decode_s": decode_s, "passes": passes,
+        "peak_rss_gib": peak_rss() / (1u64 << 30) as f64, "load_average_end": load_average(),
+    });
+    let path = out_dir().join("timing.json");
+    std::fs::write(&path, serde_json::to_vec_pretty(&record).map_err(err)?)
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    eprintln!("wrote {}", path.display());
+    Ok(())
+}
+
+fn date() -> String {
+    std::process::Command::new("date")
+        .arg("-u")
+        .arg("+%Y-%m-%d %H:%M UTC")
+        .output()
+        .map(|o| String::from_utf8_lossy(&o.stdout).trim().to_string())
+        .unwrap_or_default()
+}
+
+fn rayon_threads() -> usize {
+    std::thread::available_parallelism().map(|n| n.get()).unwrap_or(1)
+}
+
+/// The timesteps a sampler runs for `steps` steps of `config`.
+fn timesteps(config: &SchedulerConfig, sampler: SamplerKind, steps: usize) -> Result<Vec<usize>, String> {
+    Ok(match sampler {
+        SamplerKind::Ddim => DdimScheduler::new(config.clone(), steps).map_err(err)?.timesteps().to_vec(),
+        SamplerKind::DpmSolverPlusPlus2M => {
+            DpmSolverMultistepScheduler::new(config.clone(), steps).map_err(err)?.timesteps().to_vec()
+        }
+        SamplerKind::UniPc => {
+            UniPcMultistepScheduler::new(config.clone(), steps).map_err(err)?.run_timesteps().to_vec()
+        }
+    })
+}
+
+/// The passes a setting runs, as the sampling loop decides them: per step the conditional
+/// branch and, inside the guidance interval, the unconditional one; each full or shallow.
+/// Returns (full passes, shallow passes).
+pub(crate) fn pass_counts(setting: &Setting, guidance: f64, timesteps: &[usize]) -> (usize, usize) {
+    let a = &setting.acceleration;
+    let n = a.cache_interval.max(1);
+    let mut filled: [Option<usize>; 2] = [None; 2];
+    let (mut full, mut shallow) = (0, 0);
+    for (step, &t) in timesteps.iter().enumerate() {
+        let guided = guidance != 1.0 && a.guided_at(t, 1000);
+        for (branch, fill) in filled.iter_mut().enumerate() {
+            if branch == 1 && !guided {
+                continue;
+            }
+            let reuse = n > 1 && step % n != 0 && *fill >= Some(step - step % n);
+            if reuse {
+                shallow += 1;
+            } else {
+                full += 1;
+                *fill = Some(step);
+            }
+        }
+    }
+    (full, shallow)
+}
+
+/// The real-size generation time of `setting` at `guidance` from `timing.json`, in seconds.
+fn generation_seconds(timing: &Value, setting: &Setting, guidance: f64) -> Result<f64, String> {
+    let pass = &setting.acceleration.pass;
+    let products = pass.products.resolve().0.name();
+    let depth = setting.acceleration.cache_depth;
+    let entry = timing["passes"]
+        .as_array()
+        .and_then(|p| {
+            p.iter().find(|e| {
+                e["products"] == products
+                    && (e["token_merge"].as_f64().unwrap_or(-1.0) - f64::from(pass.token_merge)).abs() < 1e-6
+                    && e["cache_depth"] == depth
+            })
+        })
+        .ok_or(format!(
+            "timing.json has no pass timing for {} products, token merging {}",
+            products, pass.token_merge
+        ))?;
+    let steps = timesteps(&SchedulerConfig::stable_diffusion(), setting.sampler, setting.steps)?;
+    let (full, shallow) = pass_counts(setting, guidance, &steps);
+    let f = |k: &str| entry[k].as_f64().unwrap_or(f64::NAN);
+    Ok(timing["condition_s"].as_f64().unwrap_or(0.0)
+        + full as f64 * f("full_pass_s")
+        + shallow as f64 * f("shallow_pass_s")
+        + timing["decode_s"].as_f64().unwrap_or(0.0))
+}
+
+/// The small model's scores per setting, guidance and training object (see the module docs).
+fn quality(picked: &[Setting], guidances: &[f64], model: &Path) -> Result<(), String> {
+    let root = crate::workspace::workspace_root();
+    let device = wonder3d::diffusion::default_device();
+    let pipeline = MultiViewPipeline::from_dir_with(root.join(model), &device, WeightStorage::AsStored).map_err(err)?;
+    let size = pipeline.image_size() as u32;
+    let path = out_dir().join("quality.jsonl");
+    let demo = wonder3d::demo::small_model_sampling();
+    // The truth of every object, prepared once.
+    let mut objects = Vec::new();
+    for mesh_path in TRAIN_MESHES {
+        let (dataset, posed) = scored_sample(&root.join(mesh_path), size)?;
+        let sample = dataset.samples().next().cloned().ok_or("no sample")?;
+        let truth = dataset.render_sample(0).map_err(err)?;
+        let front = &truth.views()[0];
+        let colour = front.colour.as_ref().ok_or("no colour view")?;
+        let rgba: Vec<f32> =
+            colour.data().chunks_exact(3).zip(front.mask.data()).flat_map(|(c, &m)| [c[0], c[1], c[2], m]).collect();
+        let rgba = Image::new(size, size, 4, rgba).map_err(err)?;
+        let camera = if sample.camera.name() == "persp" { CameraType::Perspective } else { CameraType::Orthographic };
+        objects.push((object_name(mesh_path), rgba, camera, truth, posed));
+    }
+    for setting in picked {
+        for &guidance in guidances {
+            if guidance == 1.0 && setting.acceleration.guidance_interval != [0.0, 1.0] {
+                continue; // no unconditional branch to limit
+            }
+            for (name, rgba, camera, truth, posed) in &objects {
+                let options = SampleOptions {
+                    sampler: setting.sampler,
+                    steps: setting.steps,
+                    guidance,
+                    eta: 0.0,
+                    camera: *camera,
+                    seed: 42,
+                    draws: demo.draws,
+                    acceleration: setting.acceleration,
+                };
+                let t = Instant::now();
+                let generated = pipeline.generate(rgba, &options, &device, &mut |_, _| {}).map_err(err)?;
+                let generate_s = t.elapsed().as_secs_f64();
+                let views = generated.to_view_set().map_err(err)?;
+                let agreement = wonder3d::eval::view_agreement(truth, &views).map_err(err)?;
+                let recon_options = ReconOptions::preset(Preset::Default).with_starts(wonder3d::GENERATED_VIEW_STARTS);
+                let chamfer = match reconstruct(&views, &recon_options, &mut |_| {}) {
+                    Ok((mesh, _)) => Some(
+                        evaluate(&mesh, posed, &EvalOptions::default().with_normalize_pred(true)).map_err(err)?.chamfer,
+                    ),
+                    Err(e) => {
+                        eprintln!("{name}: reconstruction failed: {e}");
+                        None
+                    }
+                };
+                eprintln!(
+                    "{:>30} g{guidance} {name:>22}: normal {:5.2}°, IoU {:.4}, CD {}, generation {generate_s:.1} s",
+                    setting.name,
+                    agreement.normal_angle_deg,
+                    agreement.mask_iou,
+                    chamfer.map_or("-".into(), |c| format!("{c:.4}"))
+                );
+                let line = json!({
+                    "setting": setting.name, "guidance": guidance, "object": name,
+                    "normal_angle_deg": agreement.normal_angle_deg, "mask_iou": agreement.mask_iou,
+                    "chamfer": chamfer, "generate_seconds": generate_s, "draws": demo.draws,
+                    "acceleration": setting.acceleration.describe(), "date": date(),
+                });
+                let mut file = std::fs::OpenOptions::new()
+                    .create(true)
+                    .append(true)
+                    .open(&path)
+                    .map_err(|e| format!("{}: {e}", path.display()))?;
+                writeln!(file, "{line}").map_err(|e| format!("{}: {e}", path.display()))?;
+            }
+        }
+    }
+    Ok(())
+}
+
+/// The latest quality line per (setting, guidance, object).
+fn read_quality() -> Result<Vec<Value>, String> {
+    let path = out_dir().join("quality.jsonl");
+    let text = std::fs::read_to_string(&path)
+        .map_err(|e| format!("{}: {e} (run `cargo xtask chart-generation --part quality` first)", path.display()))?;
+    let mut lines: Vec<Value> = Vec::new();
+    for line in text.lines().filter(|l| !l.trim().is_empty()) {
+        let v: Value = serde_json::from_str(line).map_err(|e| format!("{}: {e}", path.display()))?;
+        lines.retain(|o| {
+            !(o["setting"] == v["setting"] && o["guidance"] == v["guidance"] && o["object"] == v["object"])
+        });
+        lines.push(v);
+    }
+    Ok(lines)
+}
+
+/// One row of the table: a setting at a guidance, its time and its scores against the default's.
+struct Row {
+    setting: Setting,
+    guidance: f64,
+    seconds: f64,
+    objects: usize,
+    mean_angle: f64,
+    mean_iou: f64,
+    mean_cd: f64,
+    worst_angle: f64,
+    worst_iou: f64,
+    worst_cd_ratio: f64,
+}
+
+/// The SVG and the Markdown table (printed) from `timing.json` and `quality.jsonl`.
+fn chart() -> Result<(), String> {
+    let path = out_dir().join("timing.json");
+    let timing: Value = serde_json::from_slice(
+        &std::fs::read(&path).map_err(|e| format!("{}: {e} (run `--part timing` first)", path.display()))?,
+    )
+    .map_err(|e| format!("{}: {e}", path.display()))?;
+    let quality = read_quality()?;
+    let all = settings();
+    let baseline = &all[0];
+    let scores = |setting: &str, guidance: f64| -> Vec<(String, f64, f64, Option<f64>)> {
+        quality
+            .iter()
+            .filter(|q| q["setting"] == setting && q["guidance"].as_f64() == Some(guidance))
+            .map(|q| {
+                (
+                    q["object"].as_str().unwrap_or("").to_string(),
+                    q["normal_angle_deg"].as_f64().unwrap_or(f64::NAN),
+                    q["mask_iou"].as_f64().unwrap_or(f64::NAN),
+                    q["chamfer"].as_f64(),
+                )
+            })
+            .collect()
+    };
+    let mut rows = Vec::new();
+    for guidance in [2.0, 1.0] {
+        let base = scores(baseline.name, guidance);
+        for setting in &all {
+            let s = scores(setting.name, guidance);
+            if s.is_empty() {
+                continue;
+            }
+            let n = s.len() as f64;
+            let mut row = Row {
+                setting: setting.clone(),
+                guidance,
+                seconds: generation_seconds(&timing, setting, guidance)?,
+                objects: s.len(),
+                mean_angle: s.iter().map(|o| o.1).sum::<f64>() / n,
+                mean_iou: s.iter().map(|o| o.2).sum::<f64>() / n,
+                mean_cd: s.iter().filter_map(|o| o.3).sum::<f64>() / n,
+                worst_angle: 0.0,
+                worst_iou: 0.0,
+                worst_cd_ratio: 1.0,
+            };
+            for (object, angle, iou, cd) in &s {
+                if let Some(b) = base.iter().find(|b| &b.0 == object) {
+                    row.worst_angle = row.worst_angle.max(angle - b.1);
+                    row.worst_iou = row.worst_iou.max(b.2 - iou);
+                    if let (Some(cd), Some(bcd)) = (cd, b.3) {
+                        row.worst_cd_ratio = row.worst_cd_ratio.max(cd / bcd);
+                    }
+                }
+            }
+            rows.push(row);
+        }
+    }
+    let base_seconds = generation_seconds(&timing, baseline, 2.0)?;
+    println!(
+        "| setting | guidance | real-size generation (min) | × default | normal error (mean, °) | mask IoU (mean) | CD (mean) | worst object: normal Δ° / IoU drop / CD ratio |"
+    );
+    println!("|---|---|---|---|---|---|---|---|");
+    for r in &rows {
+        let base = generation_seconds(&timing, baseline, r.guidance)?;
+        println!(
+            "| {} ({}) | {} | {:.1} | {:.2} | {:.2} | {:.3} | {:.4} | {:+.2} / {:.3} / {:.2} |",
+            r.setting.name,
+            describe(&r.setting),
+            r.guidance,
+            r.seconds / 60.0,
+            r.seconds / base,
+            r.mean_angle,
+            r.mean_iou,
+            r.mean_cd,
+            r.worst_angle,
+            r.worst_iou,
+            r.worst_cd_ratio
+        );
+        if r.objects != TRAIN_MESHES.len() {
+            println!("|  (only {} objects scored) |", r.objects);
+        }
+    }
+    let out = crate::workspace::workspace_root().join("docs").join("generation_speed_quality.svg");
+    let (y_lo, y_hi) =
+        rows.iter().fold((f64::MAX, f64::MIN), |(lo, hi), r| (lo.min(r.mean_angle), hi.max(r.mean_angle)));
+    let x_hi = rows.iter().map(|r| r.seconds / 60.0).fold(base_seconds / 60.0, f64::max) * 1.08;
+    {
+        let root = SVGBackend::new(&out, (900, 560)).into_drawing_area();
+        root.fill(&WHITE).map_err(err)?;
+        let mut chart = ChartBuilder::on(&root)
+            .caption(
+                "Generation: real-size time (2-core CPU) against the small model's normal error",
+                ("sans-serif", 17),
+            )
+            .margin(14)
+            .x_label_area_size(42)
+            .y_label_area_size(70)
+            .build_cartesian_2d(0.0..x_hi, (y_lo - 0.6)..(y_hi + 0.6))
+            .map_err(err)?;
+        crate::chart::draw_grid(
+            &mut chart,
+            "minutes for one real-size generation (Wonder3D++ UNet, f16 weights, 2 cores)",
+            "normal error, mean of 7 training objects (°)",
+        )?;
+        for (k, guidance) in [2.0, 1.0].into_iter().enumerate() {
+            let colour = crate::chart::OKABE_ITO[k];
+            let points: Vec<(f64, f64, &str)> = rows
+                .iter()
+                .filter(|r| r.guidance == guidance)
+                .map(|r| (r.seconds / 60.0, r.mean_angle, r.setting.name))
+                .collect();
+            chart
+                .draw_series(points.iter().map(|&(x, y, _)| Circle::new((x, y), 5, colour.filled())))
+                .map_err(err)?
+                .label(format!("guidance {guidance}"))
+                .legend(move |(x, y)| Circle::new((x + 10, y), 5, colour.filled()));
+            chart
+                .draw_series(points.iter().map(|&(x, y, name)| {
+                    Text::new(name.to_string(), (x, y), ("sans-serif", 10).into_font().color(&colour))
+                }))
+                .map_err(err)?;
+        }
+        chart
+            .configure_series_labels()
+            .position(SeriesLabelPosition::UpperRight)
+            .background_style(WHITE.mix(0.9))
+            .border_style(BLACK)
+            .draw()
+            .map_err(err)?;
+        root.present().map_err(err)?;
+    }
+    eprintln!("wrote {}", out.display());
+    Ok(())
+}
+
+/// The sampler, steps and accelerations of a setting in words.
+fn describe(s: &Setting) -> String {
+    let sampler = match s.sampler {
+        SamplerKind::Ddim => "DDIM",
+        SamplerKind::DpmSolverPlusPlus2M => "DPM-Solver++(2M)",
+        SamplerKind::UniPc => "UniPC",
+    };
+    let accel = s.acceleration.describe();
+    if accel == "none" { format!("{sampler} {}", s.steps) } else { format!("{sampler} {}, {accel}", s.steps) }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn pass_counts_follow_the_sampling_loop() {
+        let all = settings();
+        let steps = timesteps(&SchedulerConfig::stable_diffusion(), SamplerKind::DpmSolverPlusPlus2M, 20).unwrap();
+        // Today's default: 20 steps × 2 branches, all full.
+        assert_eq!(pass_counts(&all[0], 2.0, &steps), (40, 0));
+        assert_eq!(pass_counts(&all[0], 1.0, &steps), (20, 0));
+        // DeepCache every 3: steps 0, 3, …, 18 full (7 of 20).
+        let cache3 = all.iter().find(|s| s.name == "dpm20-cache3").unwrap();
+        assert_eq!(pass_counts(cache3, 2.0, &steps), (14, 26));
+        let interval = all.iter().find(|s| s.name == "dpm20-interval").unwrap();
+        let (full, shallow) = pass_counts(interval, 2.0, &steps);
+        assert_eq!(shallow, 0);
+        let guided = steps.iter().filter(|&&t| interval.acceleration.guided_at(t, 1000)).count();
+        assert_eq!(full, 20 + guided);
+        assert!(guided < 20);
+        assert!(pick(Some("dpm20,nope")).is_err());
+    }
+}
