@@ -110,12 +110,13 @@ pub(crate) fn run(part: &str, list: Option<&str>, guidances: &[f64], model: &Pat
         "timing" => timing(),
         "quality" => quality(&picked, guidances, model),
         "chart" => chart(),
+        "enhancer-timing" => enhancer_timing(),
         "all" => {
             timing()?;
             quality(&picked, guidances, model)?;
             chart()
         }
-        other => Err(format!("--part: timing, quality, chart or all (found {other:?})")),
+        other => Err(format!("--part: timing, enhancer-timing, quality, chart or all (found {other:?})")),
     }
 }
 
@@ -228,6 +229,93 @@ fn timing() -> Result<(), String> {
     Ok(())
 }
 
+/// The refinement enhancer at real size (Stable Diffusion 1.5 UNet with f16 weights and
+/// Wonder3D++'s cross-domain ControlNet, random weights) on two 1024² grids (128² latents): one
+/// denoising step — ControlNet then UNet — on the 4 guidance rows and on the 2 conditional
+/// rows, whole and as DeepCache's shallow branch from skip 1, per pass setting, and the VAE's
+/// encode and decode of the grids. `enhancer_timing.json`; about 30 min on 2 cores.
+fn enhancer_timing() -> Result<(), String> {
+    use wonder3d::diffusion::{ControlNet, ControlNetConfig, FeatureCache, Tensor, UNetExtra, compute};
+    let root = crate::workspace::workspace_root();
+    let config = |p: &str| root.join("crates/w3d-diffusion/configs/enhancer").join(p);
+    let device = wonder3d::diffusion::default_device();
+    let t = Instant::now();
+    let unet_config = UNetConfig::from_file(config("unet/config.json")).map_err(err)?;
+    let unet = UNet::random_with(&unet_config, 1, &device, WeightStorage::F16).map_err(err)?;
+    let control_config = ControlNetConfig::from_file(config("controlnet/config.json")).map_err(err)?;
+    let controlnet = ControlNet::random(&control_config, true, 2, &device).map_err(err)?;
+    let vae = Vae::random_with(
+        &VaeConfig::from_file(config("vae/config.json")).map_err(err)?,
+        3,
+        &device,
+        WeightStorage::F16,
+    )
+    .map_err(err)?;
+    eprintln!("real-size enhancer models built in {:.1} s", t.elapsed().as_secs_f64());
+    let grids: Tensor<4> = wonder3d::diffusion::gaussian_noise([2, 3, 1024, 1024], 4, &device).clamp(-1.0, 1.0);
+    let t = Instant::now();
+    let (mean, _) = vae.encode_moments(grids).map_err(err)?;
+    let encode_s = t.elapsed().as_secs_f64();
+    let t = Instant::now();
+    for i in 0..2 {
+        vae.decode(mean.clone().narrow(0, i, 1)).map_err(err)?;
+    }
+    let decode_s = t.elapsed().as_secs_f64();
+    eprintln!("VAE: encode of two 1024² grids {encode_s:.1} s, two decodes {decode_s:.1} s (load {})", load_average());
+    let timestep = [180.0f32];
+    // One step of 4 rows whole (filling DeepCache's feature), then one from skip 1 that
+    // reuses it: ControlNet, then UNet.
+    let rows = 4;
+    let latents: Tensor<4> = wonder3d::diffusion::gaussian_noise([rows, 4, 128, 128], 5, &device);
+    let control: Tensor<4> = wonder3d::diffusion::gaussian_noise([rows, 3, 1024, 1024], 6, &device).clamp(0.0, 1.0);
+    let context: Tensor<3> = wonder3d::diffusion::gaussian_noise([rows, 77, 768], 7, &device);
+    let step = |pass: PassSettings, cache: &mut FeatureCache, reuse: bool| -> Result<f64, String> {
+        let t = Instant::now();
+        compute::with_settings(pass, || -> Result<(), String> {
+            let (l, c, x) = (latents.clone(), context.clone(), control.clone());
+            let residuals = if reuse {
+                controlnet.forward_shallow(l.clone(), &timestep, c.clone(), x, 0.7, cache.depth())
+            } else {
+                controlnet.forward(l.clone(), &timestep, c.clone(), x, 0.7)
+            }
+            .map_err(err)?;
+            let extra = UNetExtra { control: Some(residuals), ip: None };
+            let out = unet.forward_cached(l, &timestep, c, None, &extra, cache, reuse).map_err(err)?;
+            out.into_data().try_to_vec::<f32>().map_err(|e| format!("{e:?}"))?;
+            Ok(())
+        })?;
+        Ok(t.elapsed().as_secs_f64())
+    };
+    let mut steps = Vec::new();
+    let bf16_ok = Products::Bf16.supported();
+    for products in [Products::F32, Products::Bf16] {
+        if products == Products::Bf16 && !bf16_ok {
+            continue;
+        }
+        let pass = PassSettings::default().with_products(products);
+        let mut cache = FeatureCache::new(1);
+        let full_s = step(pass, &mut cache, false)?;
+        let shallow_s = step(pass, &mut cache, true)?;
+        eprintln!(
+            "enhancer step, 4 rows, {} products: full {full_s:.1} s, shallow from skip 1 {shallow_s:.1} s (load {})",
+            products.name(),
+            load_average()
+        );
+        steps.push(json!({"rows": rows, "products": products.name(), "cache_depth": 1, "full_s": full_s, "shallow_s": shallow_s}));
+    }
+    let record = json!({
+        "date": date(), "cpu": crate::workspace::cpu_model(), "threads": rayon_threads(),
+        "model": "SD 1.5 UNet (f16 weights) + Wonder3D++ ControlNet with cross-domain attention (f32), random; 128² latents",
+        "vae_encode_s": encode_s, "vae_decode_s": decode_s, "steps": steps,
+        "peak_rss_gib": peak_rss() / (1u64 << 30) as f64,
+    });
+    let path = out_dir().join("enhancer_timing.json");
+    std::fs::write(&path, serde_json::to_vec_pretty(&record).map_err(err)?)
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    eprintln!("wrote {}", path.display());
+    Ok(())
+}
+
 fn date() -> String {
     std::process::Command::new("date")
         .arg("-u")
@@ -268,7 +356,7 @@ pub(crate) fn pass_counts(setting: &Setting, guidance: f64, timesteps: &[usize])
             if branch == 1 && !guided {
                 continue;
             }
-            let reuse = n > 1 && step % n != 0 && *fill >= Some(step - step % n);
+            let reuse = n > 1 && !step.is_multiple_of(n) && *fill >= Some(step - step % n);
             if reuse {
                 shallow += 1;
             } else {

@@ -19,6 +19,7 @@ pub(crate) mod geglu;
 pub(crate) mod group_norm;
 #[cfg(feature = "train")]
 pub(crate) mod linear;
+pub(crate) mod token_merge;
 
 // The kernels as differentiable operations of Burn's autodiff on flex (feature `train`).
 #[cfg(feature = "train")]

@@ -248,6 +248,9 @@ pub struct TransformerBlock {
     ff_out: Linear,
     /// Images per multi-view group (1: plain self-attention).
     views: usize,
+    /// Whether the block sits at the model's highest-resolution level, where its multi-view
+    /// self-attention may run on merged tokens ([`crate::compute::PassSettings::token_merge`]).
+    first_level: bool,
 }
 
 impl TransformerBlock {
@@ -291,20 +294,39 @@ impl TransformerBlock {
             ff_proj,
             ff_out,
             views: s.views,
+            first_level: s.first_level,
         }
     }
 
-    /// `x [n, tokens, dim]`; with multi-view attention `n` is a multiple of the view count,
-    /// with cross-domain attention `n` is even (`[normal half, colour half]`); `ip` the
-    /// IP-Adapter tokens of the cross-attention (`[n, n_ip, cross_dim]`), if any.
-    fn forward(&self, x: Tensor<3>, context: &Tensor<3>, ip: Option<&IpTokens>) -> Tensor<3> {
+    /// `x [n, tokens, dim]` with `tokens = h·w` of an `(h, w)` latent grid; with multi-view
+    /// attention `n` is a multiple of the view count, with cross-domain attention `n` is even
+    /// (`[normal half, colour half]`); `ip` the IP-Adapter tokens of the cross-attention
+    /// (`[n, n_ip, cross_dim]`), if any.
+    fn forward(&self, x: Tensor<3>, context: &Tensor<3>, ip: Option<&IpTokens>, hw: (usize, usize)) -> Tensor<3> {
         crate::compute::record(crate::compute::WorkKind::TransformerBlock, 1);
-        let attn1 = &self.attn1;
-        let x = within_views(self.norm1.forward(x.clone()), self.views, |t| attn1.forward(t, None)) + x;
+        let attn1 = |t: Tensor<3>| self.attn1.forward(t, None);
+        let normed = self.norm1.forward(x.clone());
+        let x = match self.token_merge() {
+            Some(ratio) => within_views(normed, self.views, |t| {
+                crate::kernels::token_merge::with_merged_tokens(t, self.views, hw, ratio, attn1)
+            }),
+            None => within_views(normed, self.views, attn1),
+        } + x;
         let x = joint_attention(x, self.norm_joint_mid.as_ref(), self.attn_joint_mid.as_ref());
         let x = self.attn2.forward_with_ip(self.norm2.forward(x.clone()), context, ip) + x;
         let x = self.feed_forward(self.norm3.forward(x.clone())) + x;
         joint_attention(x, self.norm_joint_last.as_ref(), self.attn_joint_last.as_ref())
+    }
+
+    /// The fraction of tokens merged before this block's self-attention: the pass's
+    /// [`crate::compute::PassSettings::token_merge`] when it is positive and the block sits at
+    /// the highest-resolution level, otherwise `None` (the plain attention). That level holds
+    /// the most expensive self-attention of both models that run here: the multi-view
+    /// attention over 6 × 1024 tokens of Wonder3D++'s UNet, and the enhancer's over 128² tokens
+    /// per grid (ToMe for Stable Diffusion merges there too).
+    fn token_merge(&self) -> Option<f32> {
+        let ratio = crate::compute::settings().token_merge;
+        (self.first_level && ratio > 0.0).then_some(ratio)
     }
 
     /// The GEGLU feed-forward `ff_out(hidden · gelu(gate))`, `[hidden, gate] = ff_proj(x)`,
@@ -436,7 +458,7 @@ impl SpatialTransformer {
             Projection::Linear(lin) => lin.forward(to_tokens(x)),
         };
         for block in &self.blocks {
-            tokens = block.forward(tokens, context, ip);
+            tokens = block.forward(tokens, context, ip, (h, w));
         }
         let to_image = |t: Tensor<3>| t.swap_dims(1, 2).reshape([n, c, h, w]);
         let out = match &self.proj_out {

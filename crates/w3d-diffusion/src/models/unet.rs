@@ -528,7 +528,7 @@ impl UNet {
         match &cache.feature {
             Some(feature) if reuse && feature.dims()[0] == n => {
                 let feature = feature.clone();
-                self.run(sample, timesteps, context, class_labels, extra, Pass::Shallow(feature, cache.depth))
+                self.run(sample, timesteps, context, class_labels, extra, Pass::Shallow(Box::new(feature), cache.depth))
             }
             _ => self.run(sample, timesteps, context, class_labels, extra, Pass::Full(Some(cache))),
         }
@@ -587,7 +587,7 @@ impl UNet {
                 }
                 (x, 0, store)
             }
-            Pass::Shallow(feature, depth) => (feature, skip_count - 1 - depth, None),
+            Pass::Shallow(feature, depth) => (*feature, skip_count - 1 - depth, None),
         };
         let mut layer = 0;
         for block in &self.up_blocks {
@@ -661,7 +661,7 @@ impl UNet {
 /// only the shallow branch from skip `depth`, the deep part's contribution given.
 enum Pass<'a> {
     Full(Option<&'a mut FeatureCache>),
-    Shallow(Tensor<4>, usize),
+    Shallow(Box<Tensor<4>>, usize),
 }
 
 /// Sinusoidal timestep features `[n, block_out_channels[0]]` of `c` (see

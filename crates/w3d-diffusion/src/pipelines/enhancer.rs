@@ -423,7 +423,7 @@ impl EnhancerPipeline {
             // DeepCache: a step that is not a multiple of the interval reuses the deep features
             // of the last full pass, if that pass had the same rows.
             let reuse = accel.cache_interval > 1
-                && done % accel.cache_interval != 0
+                && !done.is_multiple_of(accel.cache_interval)
                 && cache.batch() == Some(rows)
                 && last_full.is_some_and(|f| f >= done - done % accel.cache_interval);
             let colour = latents.clone().slice([0..1, 0..c, 0..h, 0..w]);
