@@ -258,3 +258,170 @@ pub fn min_snr_gamma(s: &str) -> Result<MinSnrGamma, String> {
     let gamma = finite_in(s, 0.0, 1000.0, "a Min-SNR gamma (or none)")?;
     if gamma == 0.0 { Err("a Min-SNR gamma above 0 (or none)".into()) } else { Ok(MinSnrGamma(Some(gamma))) }
 }
+
+/// `--products`: the precision of the diffusion model's large matrix products.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ProductsArg {
+    /// f32 products and sums (the reference arithmetic).
+    F32,
+    /// bfloat16 products summed in f32, on a CPU with AVX-512 BF16 (elsewhere f32, with a note).
+    Bf16,
+}
+
+/// Largest `--cache-interval`: a full UNet pass at least every 50 steps (the library's
+/// `MAX_CACHE_INTERVAL`, checked at compile time below).
+pub const MAX_CACHE_INTERVAL: usize = 50;
+
+/// Largest `--cache-depth` the parser accepts; the model's UNet bounds it further (0..12 for
+/// Stable Diffusion 1.5, 0..6 for the small model), checked once the model is loaded.
+pub const MAX_CACHE_DEPTH: usize = 63;
+
+/// Largest `--token-merge` (the library's `MAX_TOKEN_MERGE`, checked at compile time below).
+pub const MAX_TOKEN_MERGE: f64 = 0.9;
+
+#[cfg(feature = "diffusion")]
+const _: () = {
+    use wonder3d::diffusion::{compute, pipelines::acceleration};
+    assert!(MAX_CACHE_INTERVAL == acceleration::MAX_CACHE_INTERVAL);
+    assert!(MAX_TOKEN_MERGE as f32 == compute::MAX_TOKEN_MERGE);
+};
+
+/// `--guidance-interval LO,HI`: two noise levels `t/T` in [0, 1] with `LO ≤ HI`.
+pub fn guidance_interval(s: &str) -> Result<[f64; 2], String> {
+    const EXPECTED: &str = "two noise levels LO,HI from 0 to 1 with LO ≤ HI (e.g. 0.1,0.7)";
+    let Some((lo, hi)) = s.split_once(',') else {
+        return Err(format!("expected {EXPECTED}, got {s:?}"));
+    };
+    let level = |v: &str| finite_in(v, 0.0, 1.0, "noise levels LO,HI").map_err(|e| format!("{e} (in {s:?})"));
+    let (lo, hi) = (level(lo)?, level(hi)?);
+    if lo > hi {
+        return Err(format!("expected {EXPECTED}, got LO {lo} above HI {hi}"));
+    }
+    Ok([lo, hi])
+}
+
+/// `--cache-interval`: a full UNet pass every 1 to [`MAX_CACHE_INTERVAL`] steps.
+pub fn cache_interval(s: &str) -> Result<usize, String> {
+    whole_in(s, 1, MAX_CACHE_INTERVAL as i128, " steps between full UNet passes (1: no caching)")
+}
+
+/// `--cache-depth`: a skip of the UNet, 0 to [`MAX_CACHE_DEPTH`] (the model bounds it further).
+pub fn cache_depth(s: &str) -> Result<usize, String> {
+    whole_in(s, 0, MAX_CACHE_DEPTH as i128, " (a skip of the model's UNet)")
+}
+
+/// `--token-merge`: a fraction of tokens in [0, [`MAX_TOKEN_MERGE`]].
+pub fn token_merge(s: &str) -> Result<f32, String> {
+    finite_in(s, 0.0, MAX_TOKEN_MERGE, "a fraction of tokens").map(|r| r as f32)
+}
+
+/// The training-free accelerations of a sampling loop (`w3d_diffusion`'s `Acceleration`),
+/// shared by the sampling flags of `generate`, `run`, `batch` and `demo` and by `refine`'s
+/// diffusion enhancer. Every default is the reference arithmetic; the measured speed and
+/// quality of each are in docs/benchmarks.md, "Training-free acceleration".
+#[derive(clap::Args, Clone, Debug)]
+#[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
+pub struct AccelerationArgs {
+    /// Classifier-free guidance only at noise levels t/T from LO to HI (0: clean, 1: pure
+    /// noise; LO ≤ HI); the steps outside run the conditional branch alone, at half the cost
+    /// of a guided step (0,1: guidance at every step, the reference).
+    #[arg(long, value_name = "LO,HI", default_value = "0,1", allow_hyphen_values = true, value_parser = guidance_interval)]
+    pub guidance_interval: [f64; 2],
+    /// DeepCache: a full UNet pass every N steps, the passes between computing only the
+    /// shallow layers down to --cache-depth and reusing the deep features of the last full
+    /// pass; 1 to 50 (1: no caching, every pass full, the reference).
+    #[arg(long, value_name = "N", default_value_t = 1, allow_hyphen_values = true, value_parser = cache_interval)]
+    pub cache_interval: usize,
+    /// DeepCache: the skip connection the cached passes recompute down to (0: conv_in only;
+    /// deeper is slower and closer to a full pass); a skip of the model's UNet, 0–11 for
+    /// Stable Diffusion 1.5 and 0–5 for the small model, checked against the model before it
+    /// samples (no effect while --cache-interval is 1).
+    #[arg(long, value_name = "D", default_value_t = 1, allow_hyphen_values = true, value_parser = cache_depth)]
+    pub cache_depth: usize,
+    /// Precision of the model's large matrix products: f32, or bf16 products summed in f32
+    /// (AVX-512 BF16; on a CPU without it the products stay f32, with a one-line note).
+    #[arg(long, value_enum, default_value_t = ProductsArg::F32)]
+    pub products: ProductsArg,
+    /// Fraction of the tokens merged into their most similar neighbour before the
+    /// highest-resolution multi-view self-attention and copied back after it, from 0 to 0.9
+    /// (0: none merged, the reference).
+    #[arg(long, value_name = "R", default_value_t = 0.0, allow_hyphen_values = true, value_parser = token_merge)]
+    pub token_merge: f32,
+}
+
+impl AccelerationArgs {
+    /// Checks the flags before any weights load (errors name the flag) and describes what
+    /// will run, as the reports name it (`"none"`, or e.g. `"DeepCache every 2 from skip 1"`;
+    /// the products as this CPU computes them).
+    pub fn check(&self) -> wonder3d::Result<String> {
+        #[cfg(feature = "diffusion")]
+        return Ok(self.acceleration()?.0.describe());
+        // Without the model the parsers' ranges are all there is to check, and nothing runs.
+        #[cfg(not(feature = "diffusion"))]
+        Ok("none".into())
+    }
+}
+
+/// ` (acceleration: …)` for a summary line, or nothing for `"none"`.
+pub fn acceleration_note(description: &str) -> String {
+    if description == "none" { String::new() } else { format!(" (acceleration: {description})") }
+}
+
+/// The help of `refine`'s acceleration flags: they act on the diffusion enhancer only
+/// (`#[command(mut_args(…))]` of `refine`'s arguments).
+pub fn for_the_enhancer(arg: clap::Arg) -> clap::Arg {
+    const IDS: [&str; 5] = ["guidance_interval", "cache_interval", "cache_depth", "products", "token_merge"];
+    if !IDS.contains(&arg.get_id().as_str()) {
+        return arg;
+    }
+    let help = arg.get_help().map(ToString::to_string).unwrap_or_default();
+    arg.help(format!(
+        "{help}. For the diffusion enhancer (--enhancer DIR), in every iteration; accepted and without effect \
+         with identity or oracle:MESH"
+    ))
+}
+
+#[cfg(feature = "diffusion")]
+impl AccelerationArgs {
+    /// The accelerations these flags ask for, checked (errors name the flag), with the
+    /// products this CPU computes, and a one-line note when that is not what was asked
+    /// (bf16 on a CPU without AVX-512 BF16 stays f32). Call it before any weights load.
+    pub fn acceleration(&self) -> wonder3d::Result<(wonder3d::Acceleration, Option<String>)> {
+        use wonder3d::diffusion::compute::{PassSettings, Products};
+        let asked = match self.products {
+            ProductsArg::F32 => Products::F32,
+            ProductsArg::Bf16 => Products::Bf16,
+        };
+        let (products, note) = asked.resolve();
+        let acceleration = wonder3d::Acceleration::default()
+            .with_guidance_interval(self.guidance_interval)
+            .with_cache_interval(self.cache_interval)
+            .with_cache_depth(self.cache_depth)
+            .with_pass(PassSettings::default().with_products(products).with_token_merge(self.token_merge));
+        name_acceleration_flags(acceleration.validate())?;
+        Ok((acceleration, note))
+    }
+}
+
+/// `result` with the library's names of the acceleration settings (`cache_depth`, …) in its
+/// error replaced by their flags (`--cache-depth`, …), also behind a context a caller put in
+/// front (`MESH … in VIEWS …: cache_depth`: the flag is what to fix); other errors pass
+/// unchanged. (`refine`'s enhancer checks the cache depth against its UNet only when it
+/// runs; the generation's model is checked as soon as it loads, `generate::load`.)
+pub fn name_acceleration_flags<T>(result: wonder3d::Result<T>) -> wonder3d::Result<T> {
+    const FLAGS: [(&str, &str); 5] = [
+        ("guidance_interval", "--guidance-interval"),
+        ("cache_interval", "--cache-interval"),
+        ("cache_depth", "--cache-depth"),
+        ("token_merge", "--token-merge"),
+        ("products", "--products"),
+    ];
+    result.map_err(|e| match e {
+        wonder3d::Error::Invalid { field, expected } => {
+            let named = |name: &str| field == name || field.strip_suffix(name).is_some_and(|f| f.ends_with(": "));
+            let field = FLAGS.iter().find(|(name, _)| named(name)).map_or(field, |(_, flag)| flag.to_string());
+            wonder3d::Error::Invalid { field, expected }
+        }
+        other => other,
+    })
+}

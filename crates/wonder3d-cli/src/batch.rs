@@ -95,15 +95,16 @@ pub fn run(args: &BatchArgs) -> Result<()> {
     let manifest = Manifest::read(&args.manifest)?;
     // Everything checkable is checked before the weights load.
     let mine = Batch::check(&options, &manifest, args.weights.is_some())?;
-    args.sampling.prepare_options()?;
+    let acceleration = args.sampling.check()?;
     if !args.quiet {
         eprintln!(
-            "{}: {} items, shard {} runs {} of them -> {}",
+            "{}: {} items, shard {} runs {} of them -> {}{}",
             args.manifest.display(),
             manifest.items.len(),
             shard,
             mine.len(),
-            args.out.display()
+            args.out.display(),
+            if args.weights.is_some() { crate::args::acceleration_note(&acceleration) } else { String::new() }
         );
     }
     // A shard of view folders only needs no model: loading one would cost every task its time.

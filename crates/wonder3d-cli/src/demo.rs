@@ -85,8 +85,10 @@ pub fn run(args: &DemoArgs) -> Result<()> {
     demo.save(&args.out)?;
     let r = &demo.report;
     if let Some(g) = &r.generated_views {
+        let acceleration =
+            r.pipeline.generation.as_ref().map_or(String::new(), |g| crate::args::acceleration_note(&g.acceleration));
         println!(
-            "generated views against spot's: normal error {:.1}° inside the true mask ({:.1}° leaving out its one-pixel rim), mask IoU {:.3}",
+            "generated views against spot's{acceleration}: normal error {:.1}° inside the true mask ({:.1}° leaving out its one-pixel rim), mask IoU {:.3}",
             g.normal_angle_deg, g.interior_normal_angle_deg, g.mask_iou
         );
     }

@@ -1,14 +1,15 @@
 //! `wonder3d generate IMAGE --weights DIR --out VIEWS_DIR [--camera ortho|persp]
 //! [--scheduler ddim|dpmpp-2m|unipc] [--steps N] [--guidance G] [--eta E] [--seed S] [--draws K] [--device cpu|wgpu]
-//! [--min-confidence C]`: the 6 normal + 6 colour views of a photo or RGBA image from the
-//! Wonder3D++ multi-view diffusion model, written as a view-set folder with a contact sheet.
-//! The image is prepared as `wonder3d prepare` does first.
+//! [--min-confidence C] [--guidance-interval LO,HI] [--cache-interval N] [--cache-depth D]
+//! [--products f32|bf16] [--token-merge R]`: the 6 normal + 6 colour views of a photo or RGBA
+//! image from the Wonder3D++ multi-view diffusion model, written as a view-set folder with a
+//! contact sheet. The image is prepared as `wonder3d prepare` does first.
 
 use std::path::PathBuf;
 
 use wonder3d::{Error, Result};
 
-use crate::args::{CameraArg, DeviceArg, SchedulerArg};
+use crate::args::{AccelerationArgs, CameraArg, DeviceArg, SchedulerArg};
 
 /// The model directory and its sampling options, shared by `generate` and `run`.
 #[derive(clap::Args)]
@@ -23,7 +24,7 @@ pub struct ModelArgs {
 
 /// Sampling and input options of the model, shared by `generate`, `run`, `batch` and `demo`
 /// (defaults: the Wonder3D++ sampling settings — 50 DDIM steps, guidance 2, eta 1, seed 42,
-/// one draw; `demo --from-image` with the small model samples as
+/// one draw, no training-free acceleration; `demo --from-image` with the small model samples as
 /// `wonder3d::demo::small_model_sampling` says where guidance and draws are left out).
 #[derive(clap::Args)]
 #[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
@@ -60,6 +61,8 @@ pub struct SamplingArgs {
     /// without alpha; 0 accepts every mask).
     #[arg(long, default_value_t = 0.5, allow_hyphen_values = true, value_parser = crate::args::confidence)]
     pub min_confidence: f32,
+    #[command(flatten)]
+    pub acceleration: AccelerationArgs,
 }
 
 impl SamplingArgs {
@@ -70,6 +73,14 @@ impl SamplingArgs {
             return Err(Error::invalid("--min-confidence", format!("a value in [0, 1], got {}", self.min_confidence)));
         }
         Ok(wonder3d::PrepareOptions::default().with_min_confidence(self.min_confidence))
+    }
+
+    /// Checks every setting that needs no model (the preparation of the input, the
+    /// accelerations), so that a bad value is refused before any image is read or weights
+    /// load; the accelerations' description as the reports name it (`"none"` for none).
+    pub fn check(&self) -> Result<String> {
+        self.prepare_options()?;
+        self.acceleration.check()
     }
 }
 
@@ -98,22 +109,43 @@ mod with_model {
     use wonder3d::{CameraType, ComputeDevice, Generator, SampleOptions, SamplerKind};
 
     /// Loads the model in `weights` onto the device of `args`, with its sampling options
-    /// (the guidance and draws of `defaults` where the command line leaves them out). The device opens
-    /// first, so a missing GPU backend is named before the weights are read; a GPU is named on
-    /// stderr (with a warning when it is a software adapter).
+    /// (the guidance and draws of `defaults` where the command line leaves them out). The
+    /// accelerations are checked and the device opens first, so a bad value or a missing GPU
+    /// backend is named before the weights are read; a GPU is named on stderr (with a warning
+    /// when it is a software adapter), and so, in one line, are bf16 products this CPU lacks.
     pub fn load(weights: &std::path::Path, args: &SamplingArgs, defaults: &SampleOptions) -> Result<Generator> {
+        let (acceleration, note) = args.acceleration.acceleration()?;
         let device = args.device.compute_device().open()?;
         if device.kind != ComputeDevice::Cpu {
             eprintln!("device: {}", device.description);
         }
-        let options = sample_options(args, defaults);
-        Ok(Generator::load_on(weights, device.device)?
+        if let Some(note) = note {
+            eprintln!("note: {note}");
+        }
+        let options = SampleOptions { acceleration, ..sample_options(args, defaults) };
+        let generator = Generator::load_on(weights, device.device)?
             .with_options(options)
-            .with_prepare_options(args.prepare_options()?))
+            .with_prepare_options(args.prepare_options()?);
+        // The cache depth needs the model: checked once it is loaded, before any sampling (the
+        // library checks it again when sampling starts, naming its field).
+        let skips = generator.pipeline().unet().skip_count();
+        if acceleration.cache_interval > 1 && acceleration.cache_depth >= skips {
+            return Err(Error::invalid(
+                "--cache-depth",
+                format!(
+                    "a skip of this model's UNet, 0 to {} (found {}; {})",
+                    skips.saturating_sub(1),
+                    acceleration.cache_depth,
+                    weights.display()
+                ),
+            ));
+        }
+        Ok(generator)
     }
 
     /// The sampling options of `args`, with the guidance and draws of `defaults` where the
-    /// command line leaves them out (every other setting has a command-line default).
+    /// command line leaves them out (every other setting has a command-line default), without
+    /// the accelerations ([`load`] checks them and resolves the products).
     fn sample_options(args: &SamplingArgs, defaults: &SampleOptions) -> SampleOptions {
         let camera = match args.camera {
             CameraArg::Ortho => CameraType::Orthographic,
@@ -140,6 +172,7 @@ mod with_model {
     pub fn run(args: &GenerateArgs) -> Result<()> {
         wonder3d::outputs::for_flag("--out", wonder3d::outputs::check_out_dir(&args.out))?;
         wonder3d::outputs::check_inputs_outside(("--out", &args.out), &[("IMAGE", &args.image)])?;
+        args.model.sampling.check()?;
         // Read and prepare the image before loading the weights: a refused photo fails fast.
         let prepared = wonder3d::prepare_image(&args.image, &args.model.sampling.prepare_options()?)?;
         if !args.quiet {
@@ -154,13 +187,14 @@ mod with_model {
         bar.finish_and_clear();
         generated.save(&args.out)?;
         println!(
-            "generated {} views ({}×{}, {}) of {} -> {}",
+            "generated {} views ({}×{}, {}) of {} -> {}{}",
             generated.views.len(),
             generated.views.width(),
             generated.views.height(),
             generated.views.rig().name,
             args.image.display(),
-            args.out.display()
+            args.out.display(),
+            crate::args::acceleration_note(&generator.options().acceleration.describe())
         );
         Ok(())
     }

@@ -1,6 +1,7 @@
 //! `wonder3d refine MESH VIEWS --enhancer DIR|identity|oracle:MESH --out X.glb`: the refinement
 //! loop (enhance four views at `--size` → refine the mesh → refine the texture), after
-//! `wonder3d reconstruct`.
+//! `wonder3d reconstruct`; the diffusion enhancer takes the training-free accelerations of
+//! `generate` (`--guidance-interval`, `--cache-interval`, …).
 
 use std::path::PathBuf;
 
@@ -11,6 +12,7 @@ use wonder3d::refine::{
 };
 use wonder3d::{Error, Mesh, Result, TextureOptions, ViewSet, save_mesh};
 
+use crate::args::AccelerationArgs;
 use crate::progress;
 
 /// `--enhancer`: where the enhanced views come from.
@@ -39,6 +41,7 @@ pub fn enhancer(s: &str) -> std::result::Result<EnhancerArg, String> {
 
 /// Arguments of `wonder3d refine`.
 #[derive(clap::Args)]
+#[command(mut_args(crate::args::for_the_enhancer))]
 pub struct RefineArgs {
     /// The closed mesh reconstructed from VIEWS (e.g. by `wonder3d reconstruct`), in the views'
     /// world frame; its uvs, colours and texture are ignored.
@@ -79,6 +82,8 @@ pub struct RefineArgs {
     /// projection, seconds) as JSON.
     #[arg(long)]
     report: Option<PathBuf>,
+    #[command(flatten)]
+    acceleration: AccelerationArgs,
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
@@ -97,6 +102,9 @@ pub fn run(args: &RefineArgs) -> Result<()> {
         inputs.push(("--enhancer oracle:", oracle.as_path()));
     }
     check_distinct(&outputs, &inputs)?;
+    // Checked whatever the enhancer (identity and oracle ignore them), before any work.
+    let described = args.acceleration.check()?;
+    let acceleration = if matches!(args.enhancer, EnhancerArg::Diffusion(_)) { described } else { "none".into() };
     let texture = TextureOptions::default().with_size(args.texture_size);
     texture.validate()?;
     let mut options =
@@ -125,21 +133,25 @@ pub fn run(args: &RefineArgs) -> Result<()> {
             }
             Box::new(OracleEnhancer::new(truth))
         }
-        EnhancerArg::Diffusion(dir) => diffusion_enhancer(dir, None)?,
+        EnhancerArg::Diffusion(dir) => diffusion_enhancer(dir, None, Some(&args.acceleration))?,
     };
     let views = ViewSet::load(&args.views)?;
     // What the views see of the mesh is about both inputs: name them.
     let both = format!("MESH {} in VIEWS {}", args.mesh.display(), args.views.display());
-    let refined = wonder3d::outputs::for_flag(
+    let refined = crate::args::name_acceleration_flags(wonder3d::outputs::for_flag(
         &both,
         refine_with_bar(&geometry, &views, enhancer.as_ref(), &options, args.quiet),
-    )?;
+    ))?;
     save_mesh(&args.out, &refined.mesh)?;
     if let Some(path) = &args.report {
-        let json = serde_json::to_vec_pretty(&refined.report).map_err(|e| Error::invalid("report", e.to_string()))?;
+        let mut report = serde_json::to_value(&refined.report).map_err(|e| Error::invalid("report", e.to_string()))?;
+        if let Some(object) = report.as_object_mut() {
+            object.insert("acceleration".into(), acceleration.clone().into());
+        }
+        let json = serde_json::to_vec_pretty(&report).map_err(|e| Error::invalid("report", e.to_string()))?;
         write_atomic(path, |w| std::io::Write::write_all(w, &json).map_err(|e| Error::io(path, e)))?;
     }
-    println!("{} -> {}", summary(&refined.report), args.out.display());
+    println!("{}{} -> {}", summary(&refined.report), crate::args::acceleration_note(&acceleration), args.out.display());
     Ok(())
 }
 
@@ -243,7 +255,7 @@ impl RefineAfterArgs {
         let Some(dir) = self.enhancer.as_ref().filter(|_| iterations > 0) else {
             return Ok(None);
         };
-        let enhancer = diffusion_enhancer(dir, input)?;
+        let enhancer = diffusion_enhancer(dir, input, None)?;
         let options =
             RefineOptions::default().with_iterations(iterations).with_size(self.refine_size).with_texture(texture);
         refine_with_bar(geometry, views, enhancer.as_ref(), &options, quiet).map(Some)
@@ -262,10 +274,26 @@ fn check_enhancer_dir(_: &std::path::Path) -> Result<()> {
     Err(crate::generate::without_model())
 }
 
-/// The diffusion enhancer of `dir`.
+/// The diffusion enhancer of `dir`, with the accelerations of `acceleration` (none without):
+/// checked, and bf16 products this CPU lacks named in one line on stderr, before the weights
+/// load.
 #[cfg(feature = "diffusion")]
-fn diffusion_enhancer(dir: &std::path::Path, input: Option<&wonder3d::Image>) -> Result<Box<dyn Enhancer>> {
-    let enhancer = wonder3d::refine::DiffusionEnhancer::load(dir)?;
+fn diffusion_enhancer(
+    dir: &std::path::Path,
+    input: Option<&wonder3d::Image>,
+    acceleration: Option<&AccelerationArgs>,
+) -> Result<Box<dyn Enhancer>> {
+    let acceleration = match acceleration {
+        Some(args) => {
+            let (acceleration, note) = args.acceleration()?;
+            if let Some(note) = note {
+                eprintln!("note: {note}");
+            }
+            acceleration
+        }
+        None => wonder3d::Acceleration::default(),
+    };
+    let enhancer = wonder3d::refine::DiffusionEnhancer::load(dir)?.with_acceleration(acceleration);
     Ok(Box::new(match input {
         Some(image) => enhancer.with_input_image(image.clone()),
         None => enhancer,
@@ -274,6 +302,10 @@ fn diffusion_enhancer(dir: &std::path::Path, input: Option<&wonder3d::Image>) ->
 
 /// The diffusion enhancer needs the model (this binary has none).
 #[cfg(not(feature = "diffusion"))]
-fn diffusion_enhancer(_: &std::path::Path, _: Option<&wonder3d::Image>) -> Result<Box<dyn Enhancer>> {
+fn diffusion_enhancer(
+    _: &std::path::Path,
+    _: Option<&wonder3d::Image>,
+    _: Option<&AccelerationArgs>,
+) -> Result<Box<dyn Enhancer>> {
     Err(crate::generate::without_model())
 }

@@ -66,6 +66,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
     let texture = TextureOptions::default().with_size(args.texture_size);
     texture.validate()?;
     let iterations = args.refinement.check()?;
+    args.model.sampling.check()?;
     // Read and prepare the image before loading the weights: a refused photo fails fast.
     let prepared = wonder3d::prepare_image(&args.image, &args.model.sampling.prepare_options()?)?;
     if !args.quiet {
@@ -103,8 +104,9 @@ pub fn run(args: &RunArgs) -> Result<()> {
         println!("{}", crate::refine::summary(&refined.report));
     }
     let r = &output.report;
+    let acceleration = r.generation.as_ref().map_or(String::new(), |g| crate::args::acceleration_note(&g.acceleration));
     println!(
-        "{} -> {}: {} triangles (init: {}), {}×{} texture, {:.1} s generation, {:.1} s reconstruction{}",
+        "{} -> {}: {} triangles (init: {}), {}×{} texture, {:.1} s generation{acceleration}, {:.1} s reconstruction{}",
         args.image.display(),
         args.out.display(),
         r.triangles,

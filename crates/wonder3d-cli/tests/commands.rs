@@ -1,10 +1,12 @@
 //! The CLI's commands, one test binary for all (one link instead of nine): `info`, `render` /
 //! `eval` / `texture`, `prepare`, `reconstruct` and `demo`, hostile input to all of them,
-//! `generate` / `run` / `demo --from-image` with the tiny model, `batch`, `dataset` and
-//! `train`. Run one group with `cargo test --release -p wonder3d-cli --test commands <group>::`.
+//! `generate` / `run` / `demo --from-image` with the tiny model, their training-free
+//! accelerations, `batch`, `dataset` and `train`. Run one group with `cargo test --release -p wonder3d-cli --test commands <group>::`.
 
 mod common;
 
+#[path = "commands/acceleration.rs"]
+mod acceleration;
 #[path = "commands/batch.rs"]
 mod batch;
 #[path = "commands/dataset.rs"]

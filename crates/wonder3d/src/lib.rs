@@ -78,7 +78,7 @@ pub use w3d_core::{
 #[cfg(feature = "diffusion")]
 pub use w3d_diffusion as diffusion;
 #[cfg(feature = "diffusion")]
-pub use w3d_diffusion::{CameraType, ComputeDevice, OpenedDevice, SampleOptions, SamplerKind};
+pub use w3d_diffusion::{Acceleration, CameraType, ComputeDevice, OpenedDevice, SampleOptions, SamplerKind};
 /// Evaluation metrics: Chamfer, F-score, volume IoU, normal consistency, PSNR / SSIM
 /// (the `w3d-eval` crate).
 pub use w3d_eval as eval;

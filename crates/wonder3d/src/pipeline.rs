@@ -63,6 +63,10 @@ pub struct GenerationReport {
     pub draws: usize,
     /// The rig of the generated views (`wonder3d-ortho` or `wonder3d-persp`).
     pub rig: String,
+    /// The training-free accelerations of the sampling (`SampleOptions::acceleration`), as
+    /// `Acceleration::describe` names them: `"none"`, or e.g. `"guidance in [0.1, 0.7],
+    /// DeepCache every 2 from skip 1"`.
+    pub acceleration: String,
 }
 
 /// The result of a [`Pipeline`] run.
@@ -341,6 +345,7 @@ impl Pipeline {
             seed: options.seed,
             draws: options.draws,
             rig: generated.views.rig().name.clone(),
+            acceleration: options.acceleration.describe(),
         };
         self.finish(generated.views, Some(generated.input), Some(generation), seconds, progress)
     }

@@ -129,6 +129,7 @@ pub struct DiffusionEnhancer {
     input_image: Option<w3d_core::Image>,
     init_from_renders: bool,
     upstream_cfg_bugs: bool,
+    acceleration: w3d_diffusion::Acceleration,
 }
 
 #[cfg(feature = "diffusion")]
@@ -151,7 +152,14 @@ impl DiffusionEnhancer {
 
     /// An enhancer over loaded models.
     pub fn new(pipeline: w3d_diffusion::pipelines::enhancer::EnhancerPipeline, device: w3d_diffusion::Device) -> Self {
-        DiffusionEnhancer { pipeline, device, input_image: None, init_from_renders: false, upstream_cfg_bugs: false }
+        DiffusionEnhancer {
+            pipeline,
+            device,
+            input_image: None,
+            init_from_renders: false,
+            upstream_cfg_bugs: false,
+            acceleration: w3d_diffusion::Acceleration::default(),
+        }
     }
 
     /// This enhancer with the IP-Adapter image set to `image` (the input photo, RGB or RGBA).
@@ -168,6 +176,15 @@ impl DiffusionEnhancer {
         /// This enhancer reproducing the batch-order bugs of the authors' pipeline (for
         /// comparisons with their outputs; off by default).
         with_upstream_cfg_bugs(upstream_cfg_bugs: bool);
+        /// This enhancer with training-free accelerations in every iteration's call
+        /// ([`EnhancerOptions::acceleration`](w3d_diffusion::pipelines::enhancer::EnhancerOptions::acceleration);
+        /// none by default). Checked when the enhancer runs.
+        with_acceleration(acceleration: w3d_diffusion::Acceleration);
+    }
+
+    /// The accelerations of every iteration's call.
+    pub fn acceleration(&self) -> &w3d_diffusion::Acceleration {
+        &self.acceleration
     }
 }
 
@@ -221,7 +238,9 @@ impl Enhancer for DiffusionEnhancer {
         let (colours, normals) = enhancer_tiles(source, &rig, size)?;
         let (colour_grid, normal_grid) = (make_grid(&colours)?, make_grid(&normals)?);
         let grids = images_to_tensor(&[&colour_grid, &normal_grid], &self.device)?;
-        let options = EnhancerOptions::for_iteration(request.iteration).with_upstream_cfg_bugs(self.upstream_cfg_bugs);
+        let options = EnhancerOptions::for_iteration(request.iteration)
+            .with_upstream_cfg_bugs(self.upstream_cfg_bugs)
+            .with_acceleration(self.acceleration);
         let ip_image = match &self.input_image {
             Some(image) => image.clone(),
             None => colours[0].clone(),
