@@ -21,6 +21,10 @@ enum Kind {
     Simplify,
     /// `train --min-snr-gamma`: (0, 1000] or `none`.
     Gamma,
+    /// `--guidance-interval LO,HI`: two noise levels, 0 ≤ LO ≤ HI ≤ 1.
+    Interval,
+    /// `--products`: `f32` or `bf16`.
+    Products,
 }
 
 /// A closed real range.
@@ -28,14 +32,28 @@ const fn real(lo: f64, hi: f64) -> Kind {
     Kind::Real { lo, hi, open_lo: false, open_hi: false }
 }
 
+/// The accelerations of `generate`, `run`, `batch`, `demo` and `refine`.
+const ACCELERATION: [(&str, Kind); 5] = [
+    ("--guidance-interval", Kind::Interval),
+    ("--cache-interval", Kind::Whole(1, 50)),
+    ("--cache-depth", Kind::Whole(0, 63)),
+    ("--products", Kind::Products),
+    ("--token-merge", real(0.0, 0.9)),
+];
+
 /// The sampling flags of `generate`, `run`, `batch` and `demo`.
-const SAMPLING: [(&str, Kind); 6] = [
+const SAMPLING: [(&str, Kind); 11] = [
     ("--steps", Kind::Whole(1, 1000)),
     ("--guidance", real(0.0, 100.0)),
     ("--eta", real(0.0, 1.0)),
     ("--seed", Kind::Seed),
     ("--draws", Kind::Whole(1, 64)),
     ("--min-confidence", real(0.0, 1.0)),
+    ACCELERATION[0],
+    ACCELERATION[1],
+    ACCELERATION[2],
+    ACCELERATION[3],
+    ACCELERATION[4],
 ];
 
 /// Every subcommand's numeric flags.
@@ -58,12 +76,16 @@ fn flags() -> Vec<(&'static str, Vec<(&'static str, Kind)>)> {
         ),
         (
             "refine",
-            vec![
-                ("--iterations", Kind::Whole(0, 10)),
-                ("--size", Kind::Whole(1, 4096)),
-                texture,
-                ("--simplify", Kind::Simplify),
-            ],
+            [
+                &[
+                    ("--iterations", Kind::Whole(0, 10)),
+                    ("--size", Kind::Whole(1, 4096)),
+                    texture,
+                    ("--simplify", Kind::Simplify),
+                ][..],
+                &ACCELERATION[..],
+            ]
+            .concat(),
         ),
         ("demo", [&[("--size", Kind::Whole(1, 4096)), texture, starts][..], &SAMPLING[..]].concat()),
         ("prepare", vec![("--size", Kind::Whole(16, 8192)), ("--min-confidence", real(0.0, 1.0))]),
@@ -138,6 +160,12 @@ fn bad_values(kind: Kind) -> Vec<String> {
         }
         Kind::Simplify => ["-1", "0.2", "nan", "inf", "OFF"].map(String::from).to_vec(),
         Kind::Gamma => ["-1", "0", "1001", "nan", "inf", "None"].map(String::from).to_vec(),
+        Kind::Interval => {
+            ["0.5", "1.2,0.3", "0.7,0.1", "-1,0", "0,1.5", "nan,1", "0,inf", "1e309,1", "0.1,0.5,0.7", ",", "0.1,"]
+                .map(String::from)
+                .to_vec()
+        }
+        Kind::Products => ["fp8", "F32", "bf16 "].map(String::from).to_vec(),
     };
     v.extend(["abc", ""].map(String::from));
     v
