@@ -80,12 +80,20 @@ pub(crate) fn settings() -> Vec<Setting> {
             10,
             none.with_cache_interval(2).with_guidance_interval(GUIDANCE_INTERVAL).with_pass(bf16),
         ),
+        s("dpm20-cache3-interval", dpm, 20, none.with_cache_interval(3).with_guidance_interval(GUIDANCE_INTERVAL)),
         s(
             "dpm20-cache3-interval-bf16",
             dpm,
             20,
             none.with_cache_interval(3).with_guidance_interval(GUIDANCE_INTERVAL).with_pass(bf16),
         ),
+        s(
+            "dpm20-cache3-interval-bf16-tome",
+            dpm,
+            20,
+            none.with_cache_interval(3).with_guidance_interval(GUIDANCE_INTERVAL).with_pass(bf16.with_token_merge(0.5)),
+        ),
+        s("dpm20-cache3-bf16-tome", dpm, 20, none.with_cache_interval(3).with_pass(bf16.with_token_merge(0.5))),
     ]
 }
 
@@ -542,7 +550,11 @@ fn chart() -> Result<(), String> {
     for guidance in [2.0, 1.0] {
         let base = scores(baseline.name, guidance);
         for setting in &all {
-            let s = scores(setting.name, guidance);
+            // Token merging changes no bit of the small model's output (its first level has no
+            // attention; tests/token_merge.rs checks it): its rows carry the scores of the same
+            // setting without it.
+            let scored = scored_as(setting, &all);
+            let s = scores(scored, guidance);
             if s.is_empty() {
                 continue;
             }
@@ -578,8 +590,9 @@ fn chart() -> Result<(), String> {
     println!("|---|---|---|---|---|---|---|---|");
     for r in &rows {
         let base = generation_seconds(&timing, baseline, r.guidance)?;
+        let proxy = if scored_as(&r.setting, &all) == r.setting.name { "" } else { " †" };
         println!(
-            "| {} ({}) | {} | {:.1} | {:.2} | {:.2} | {:.3} | {:.4} | {:+.2} / {:.3} / {:.2} |",
+            "| {}{proxy} ({}) | {} | {:.1} | {:.2} | {:.2} | {:.3} | {:.4} | {:+.2} / {:.3} / {:.2} |",
             r.setting.name,
             describe(&r.setting),
             r.guidance,
@@ -647,6 +660,19 @@ fn chart() -> Result<(), String> {
     }
     eprintln!("wrote {}", out.display());
     Ok(())
+}
+
+/// The setting whose scores stand for `setting`'s: itself, or without token merging (a no-op
+/// on the small model).
+fn scored_as<'a>(setting: &'a Setting, all: &'a [Setting]) -> &'a str {
+    let pass = setting.acceleration.pass;
+    if pass.token_merge == 0.0 {
+        return setting.name;
+    }
+    let plain = setting.acceleration.with_pass(pass.with_token_merge(0.0));
+    all.iter()
+        .find(|o| o.sampler == setting.sampler && o.steps == setting.steps && o.acceleration == plain && !o.views_8bit)
+        .map_or(setting.name, |o| o.name)
 }
 
 /// The sampler, steps and accelerations of a setting in words.

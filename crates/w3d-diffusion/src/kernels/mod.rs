@@ -12,6 +12,7 @@ pub(crate) mod pool;
 
 // The kernels, each forward and backward; those only training uses behind feature `train`.
 pub(crate) mod attention;
+pub(crate) mod bf16;
 #[cfg(feature = "train")]
 pub(crate) mod conv;
 pub(crate) mod geglu;

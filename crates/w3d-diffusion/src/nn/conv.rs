@@ -9,6 +9,7 @@ use burn::tensor::{Tensor, s};
 
 #[cfg(feature = "train")]
 use crate::kernels::autodiff;
+use crate::kernels::bf16;
 use crate::kernels::dispatch::as_f32;
 use crate::loading::weights::{Init, ParamSource};
 
@@ -27,7 +28,8 @@ pub enum ConvAlgorithm {
     /// the backend kernel on CPU at the UNet's 4x4-16x16 levels, 1.6x slower at 32x32 with
     /// 320+ channels (the column buffer outgrows the caches).
     Im2col,
-    /// The backend's own `conv2d`.
+    /// The backend's own `conv2d`, in f32 whatever [`crate::compute::Products`] the pass asks
+    /// for.
     Direct,
 }
 
@@ -73,9 +75,22 @@ impl Conv2d {
 
     /// Applies the convolution with the given algorithm (all give the same result up to f32
     /// rounding).
+    ///
+    /// At inference on the CPU, with [`crate::compute::Products::Bf16`] asked for by the pass
+    /// and supported by the CPU, [`ConvAlgorithm::Auto`] and [`ConvAlgorithm::Im2col`] run
+    /// as im2col + one product with bf16 factors and f32 sums, whatever the column matrix's
+    /// size: it is built in bf16 straight from the image, a few hundred pixels at a time where
+    /// the images are large, and the weight is rounded straight from the dtype it is held in.
     pub fn forward_with(&self, x: Tensor<4>, algorithm: ConvAlgorithm) -> Tensor<4> {
         let bias = self.bias.as_ref().map(|b| b.val());
-        let weight = as_f32(self.weight.val());
+        let weight = self.weight.val();
+        if algorithm != ConvAlgorithm::Direct
+            && bf16::applies(&x, &weight)
+            && let Some(g) = bf16::conv_geometry(&x, &weight, self.stride, self.padding)
+        {
+            return bf16::conv2d_tensor(x, weight, bias, g);
+        }
+        let weight = as_f32(weight);
         let (s, p) = (self.stride, self.padding);
         let algorithm = match algorithm {
             ConvAlgorithm::Auto => {

@@ -5,6 +5,7 @@ use burn::tensor::Tensor;
 
 #[cfg(feature = "train")]
 use crate::kernels::autodiff;
+use crate::kernels::bf16;
 use crate::kernels::dispatch::as_f32;
 use crate::loading::weights::{Init, ParamSource};
 
@@ -38,11 +39,22 @@ impl Linear {
     }
 
     /// Applies the layer to the last dimension of `x`.
+    ///
+    /// At inference on the CPU, with [`crate::compute::Products::Bf16`] asked for by the pass
+    /// and supported by the CPU, the product runs with bf16 factors and f32 sums (the weight
+    /// rounded straight from the dtype it is held in); otherwise in f32.
     pub fn forward<const D: usize>(&self, x: Tensor<D>) -> Tensor<D> {
         let dims = x.dims();
         let [d_in, d_out] = self.weight.dims();
         let rows = dims[..D - 1].iter().product();
-        let (x, weight) = (x.reshape([rows, d_in]), as_f32(self.weight.val()));
+        let weight = self.weight.val();
+        if bf16::applies(&x, &weight) {
+            let mut out = dims;
+            out[D - 1] = d_out;
+            let bias = self.bias.as_ref().map(|b| b.val());
+            return bf16::linear_tensor(x.reshape([rows, d_in]), weight, bias).reshape(out);
+        }
+        let (x, weight) = (x.reshape([rows, d_in]), as_f32(weight));
         let bias = self.bias.as_ref().map(|b| b.val());
         let mut out = dims;
         out[D - 1] = d_out;
