@@ -124,12 +124,13 @@ pub(crate) fn run(part: &str, list: Option<&str>, guidances: &[f64], model: &Pat
         "quality" => quality(&picked, guidances, model),
         "chart" => chart(),
         "enhancer-timing" => enhancer_timing(),
+        "enhancer-vae" => enhancer_vae_bf16(),
         "all" => {
             timing()?;
             quality(&picked, guidances, model)?;
             chart()
         }
-        other => Err(format!("--part: timing, enhancer-timing, quality, chart or all (found {other:?})")),
+        other => Err(format!("--part: timing, enhancer-timing, enhancer-vae, quality, chart or all (found {other:?})")),
     }
 }
 
@@ -177,6 +178,9 @@ fn timing() -> Result<(), String> {
     let cond = pipeline.condition(&image, &device).map_err(err)?;
     let condition_s = t.elapsed().as_secs_f64();
     let noise = pipeline.initial_noise(1, &device);
+    // Peak memory during sampling alone, as docs/benchmarks.md measured the guided step's
+    // (the models resident, the peak reset before each run).
+    let reset_peak = || std::fs::write("/proc/self/clear_refs", "5").is_ok();
     let sample = |options: &SampleOptions| -> Result<(f64, wonder3d::diffusion::Tensor<4>), String> {
         let t = Instant::now();
         let latents = pipeline.sample_from(noise.clone(), &cond, options, &mut |_, _| {}).map_err(err)?;
@@ -198,9 +202,17 @@ fn timing() -> Result<(), String> {
     let (warm_s, latents) = sample(&one(1, Acceleration::default()))?;
     eprintln!("warm-up pass {warm_s:.1} s, load {}", load_average());
     let t = Instant::now();
-    pipeline.decode(latents, CameraType::Orthographic).map_err(err)?;
+    pipeline.decode(latents.clone(), CameraType::Orthographic).map_err(err)?;
     let decode_s = t.elapsed().as_secs_f64();
-    eprintln!("conditioning {condition_s:.1} s, 12 decodes {decode_s:.1} s");
+    let mut decode_bf16_s = decode_s;
+    if Products::Bf16.supported() {
+        let t = Instant::now();
+        let bf16 = PassSettings::default().with_products(Products::Bf16);
+        wonder3d::diffusion::compute::with_settings(bf16, || pipeline.decode(latents, CameraType::Orthographic))
+            .map_err(err)?;
+        decode_bf16_s = t.elapsed().as_secs_f64();
+    }
+    eprintln!("conditioning {condition_s:.1} s, 12 decodes {decode_s:.1} s (bf16 products: {decode_bf16_s:.1} s)");
 
     let mut passes = Vec::new();
     let bf16_ok = Products::Bf16.supported();
@@ -229,10 +241,46 @@ fn timing() -> Result<(), String> {
             }));
         }
     }
+    // The pass-by-pass model checked on a short whole sampling loop with every acceleration.
+    let mut record =
+        json!({ "condition_s": condition_s, "decode_s": decode_s, "decode_bf16_s": decode_bf16_s, "passes": passes });
+    let check = Setting {
+        steps: 6,
+        ..settings().into_iter().find(|s| s.name == "dpm20-cache3-interval-bf16-tome").ok_or("no check setting")?
+    };
+    let options = SampleOptions {
+        sampler: check.sampler,
+        steps: check.steps,
+        guidance: 2.0,
+        acceleration: check.acceleration,
+        ..SampleOptions::default()
+    };
+    let reset = reset_peak();
+    let (measured_s, _) = sample(&options)?;
+    let check_peak_gib = peak_rss() / (1u64 << 30) as f64;
+    // Today's default step for comparison: one guided step, every acceleration off.
+    reset_peak();
+    let reference = SampleOptions { sampler: check.sampler, steps: 1, guidance: 2.0, ..SampleOptions::default() };
+    sample(&reference)?;
+    let reference_peak_gib = peak_rss() / (1u64 << 30) as f64;
+    eprintln!(
+        "peak memory while sampling: {check_peak_gib:.2} GiB with the accelerations, {reference_peak_gib:.2} GiB for a guided step without (peak reset: {reset})"
+    );
+    let predicted_s =
+        generation_seconds(&record, &check, 2.0)? - record["condition_s"].as_f64().unwrap_or(0.0) - decode_bf16_s;
+    eprintln!(
+        "check: 6 DPM-Solver++ steps at guidance 2 with {}: sampling {measured_s:.1} s measured, {predicted_s:.1} s assembled from the passes",
+        check.acceleration.describe()
+    );
+    let passes = record["passes"].take();
     let record = json!({
         "date": date(), "cpu": crate::workspace::cpu_model(), "threads": rayon_threads(),
         "model": "Wonder3D++ MV UNet (configs/wonder3d/unet_mv), f16 weights, random; 12 images at 32² a pass",
-        "condition_s": condition_s, "decode_s": decode_s, "passes": passes,
+        "condition_s": condition_s, "decode_s": decode_s, "decode_bf16_s": decode_bf16_s, "passes": passes,
+        "check": {
+            "setting": check.acceleration.describe(), "steps": 6, "guidance": 2.0, "measured_s": measured_s,
+            "assembled_s": predicted_s, "peak_gib": check_peak_gib, "reference_step_peak_gib": reference_peak_gib,
+        },
         "peak_rss_gib": peak_rss() / (1u64 << 30) as f64, "load_average_end": load_average(),
     });
     let path = out_dir().join("timing.json");
@@ -301,20 +349,23 @@ fn enhancer_timing() -> Result<(), String> {
     };
     let mut steps = Vec::new();
     let bf16_ok = Products::Bf16.supported();
-    for products in [Products::F32, Products::Bf16] {
+    for (products, token_merge) in [(Products::F32, 0.0), (Products::Bf16, 0.0), (Products::Bf16, 0.5)] {
         if products == Products::Bf16 && !bf16_ok {
             continue;
         }
-        let pass = PassSettings::default().with_products(products);
+        let pass = PassSettings::default().with_products(products).with_token_merge(token_merge);
         let mut cache = FeatureCache::new(1);
         let full_s = step(pass, &mut cache, false)?;
         let shallow_s = step(pass, &mut cache, true)?;
         eprintln!(
-            "enhancer step, 4 rows, {} products: full {full_s:.1} s, shallow from skip 1 {shallow_s:.1} s (load {})",
+            "enhancer step, 4 rows, {} products, token merging {token_merge}: full {full_s:.1} s, shallow from skip 1 {shallow_s:.1} s (load {})",
             products.name(),
             load_average()
         );
-        steps.push(json!({"rows": rows, "products": products.name(), "cache_depth": 1, "full_s": full_s, "shallow_s": shallow_s}));
+        steps.push(json!({
+            "rows": rows, "products": products.name(), "token_merge": token_merge, "cache_depth": 1,
+            "full_s": full_s, "shallow_s": shallow_s,
+        }));
     }
     let record = json!({
         "date": date(), "cpu": crate::workspace::cpu_model(), "threads": rayon_threads(),
@@ -402,10 +453,12 @@ fn generation_seconds(timing: &Value, setting: &Setting, guidance: f64) -> Resul
     let steps = timesteps(&SchedulerConfig::stable_diffusion(), setting.sampler, setting.steps)?;
     let (full, shallow) = pass_counts(setting, guidance, &steps);
     let f = |k: &str| entry[k].as_f64().unwrap_or(f64::NAN);
+    // The decodes run with the sampling's products.
+    let decode = if products == "bf16" { &timing["decode_bf16_s"] } else { &timing["decode_s"] };
     Ok(timing["condition_s"].as_f64().unwrap_or(0.0)
         + full as f64 * f("full_pass_s")
         + shallow as f64 * f("shallow_pass_s")
-        + timing["decode_s"].as_f64().unwrap_or(0.0))
+        + decode.as_f64().unwrap_or(0.0))
 }
 
 /// The small model's scores per setting, guidance and training object (see the module docs).
@@ -567,9 +620,9 @@ fn chart() -> Result<(), String> {
                 mean_angle: s.iter().map(|o| o.1).sum::<f64>() / n,
                 mean_iou: s.iter().map(|o| o.2).sum::<f64>() / n,
                 mean_cd: s.iter().filter_map(|o| o.3).sum::<f64>() / n,
-                worst_angle: 0.0,
-                worst_iou: 0.0,
-                worst_cd_ratio: 1.0,
+                worst_angle: f64::NEG_INFINITY,
+                worst_iou: f64::NEG_INFINITY,
+                worst_cd_ratio: 0.0,
             };
             for (object, angle, iou, cd) in &s {
                 if let Some(b) = base.iter().find(|b| &b.0 == object) {
@@ -609,6 +662,7 @@ fn chart() -> Result<(), String> {
             println!("|  (only {} objects scored) |", r.objects);
         }
     }
+    enhancer_table()?;
     let out = crate::workspace::workspace_root().join("docs").join("generation_speed_quality.svg");
     let (y_lo, y_hi) =
         rows.iter().fold((f64::MAX, f64::MIN), |(lo, hi), r| (lo.min(r.mean_angle), hi.max(r.mean_angle)));
@@ -659,6 +713,122 @@ fn chart() -> Result<(), String> {
         root.present().map_err(err)?;
     }
     eprintln!("wrote {}", out.display());
+    Ok(())
+}
+
+/// The enhancer's VAE encode and decode of two 1024² grids with bf16 products, added to
+/// `enhancer_timing.json` (`vae_bf16_encode_s`, `vae_bf16_decode_s`): the call runs its VAE with
+/// the denoising's products.
+fn enhancer_vae_bf16() -> Result<(), String> {
+    let path = out_dir().join("enhancer_timing.json");
+    let mut timing: Value = serde_json::from_slice(
+        &std::fs::read(&path).map_err(|e| format!("{}: {e} (run `--part enhancer-timing` first)", path.display()))?,
+    )
+    .map_err(|e| format!("{}: {e}", path.display()))?;
+    if !Products::Bf16.supported() {
+        return Err("this CPU has no AVX-512 BF16".into());
+    }
+    let root = crate::workspace::workspace_root();
+    let config = root.join("crates/w3d-diffusion/configs/enhancer/vae/config.json");
+    let device = wonder3d::diffusion::default_device();
+    let vae =
+        Vae::random_with(&VaeConfig::from_file(config).map_err(err)?, 3, &device, WeightStorage::F16).map_err(err)?;
+    let grids: wonder3d::diffusion::Tensor<4> =
+        wonder3d::diffusion::gaussian_noise([2, 3, 1024, 1024], 4, &device).clamp(-1.0, 1.0);
+    let bf16 = PassSettings::default().with_products(Products::Bf16);
+    let (encode_s, decode_s) = wonder3d::diffusion::compute::with_settings(bf16, || -> Result<(f64, f64), String> {
+        let t = Instant::now();
+        let (mean, _) = vae.encode_moments(grids).map_err(err)?;
+        let encode_s = t.elapsed().as_secs_f64();
+        let t = Instant::now();
+        for i in 0..2 {
+            vae.decode(mean.clone().narrow(0, i, 1)).map_err(err)?;
+        }
+        Ok((encode_s, t.elapsed().as_secs_f64()))
+    })?;
+    eprintln!("VAE with bf16 products: encode {encode_s:.1} s, two decodes {decode_s:.1} s (load {})", load_average());
+    timing["vae_bf16_encode_s"] = json!(encode_s);
+    timing["vae_bf16_decode_s"] = json!(decode_s);
+    std::fs::write(&path, serde_json::to_vec_pretty(&timing).map_err(err)?)
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok(())
+}
+
+/// The first refinement iteration's time per enhancer setting, from `enhancer_timing.json`
+/// (printed; nothing when the file is missing): the VAE's encode and decode of the two grids
+/// and the 10 UniPC steps of strength 0.2 (timesteps 200, 180, …, 20), each step's rows (4
+/// guided, 2 conditional) and pass (whole or shallow) decided as the enhancer decides them.
+fn enhancer_table() -> Result<(), String> {
+    let path = out_dir().join("enhancer_timing.json");
+    let Ok(bytes) = std::fs::read(&path) else { return Ok(()) };
+    let timing: Value = serde_json::from_slice(&bytes).map_err(|e| format!("{}: {e}", path.display()))?;
+    let bf16 = PassSettings::default().with_products(Products::Bf16);
+    let none = Acceleration::default();
+    let interval = none.with_guidance_interval(GUIDANCE_INTERVAL);
+    let settings: Vec<(&str, Acceleration)> = vec![
+        ("none (today)", none),
+        ("bf16 products", none.with_pass(bf16)),
+        ("guidance in [0.1, 0.7]", interval),
+        ("DeepCache every 2", none.with_cache_interval(2)),
+        ("DeepCache every 3", none.with_cache_interval(3)),
+        ("token merging 0.5, bf16", none.with_pass(bf16.with_token_merge(0.5))),
+        ("DeepCache every 3, bf16", none.with_cache_interval(3).with_pass(bf16)),
+        (
+            "DeepCache every 3, token merging 0.5, bf16",
+            none.with_cache_interval(3).with_pass(bf16.with_token_merge(0.5)),
+        ),
+        (
+            "guidance in [0.1, 0.7], DeepCache every 3, token merging 0.5, bf16",
+            interval.with_cache_interval(3).with_pass(bf16.with_token_merge(0.5)),
+        ),
+    ];
+    let timesteps: Vec<usize> = (1..=10).rev().map(|k| 20 * k).collect();
+    let fixed = timing["vae_encode_s"].as_f64().unwrap_or(0.0) + timing["vae_decode_s"].as_f64().unwrap_or(0.0);
+    let mut base = None;
+    println!();
+    println!(
+        "| enhancer setting (first iteration: 10 UniPC steps, two 1024² grids) | full / shallow steps | minutes | × today |"
+    );
+    println!("|---|---|---|---|");
+    for (name, a) in settings {
+        let products = a.pass.products.resolve().0.name();
+        let Some(entry) = timing["steps"].as_array().and_then(|steps| {
+            steps.iter().find(|e| {
+                e["products"] == products
+                    && (e["token_merge"].as_f64().unwrap_or(0.0) - f64::from(a.pass.token_merge)).abs() < 1e-6
+            })
+        }) else {
+            continue;
+        };
+        let (full_s, shallow_s) =
+            (entry["full_s"].as_f64().unwrap_or(f64::NAN), entry["shallow_s"].as_f64().unwrap_or(f64::NAN));
+        let fixed = match (products, timing["vae_bf16_encode_s"].as_f64(), timing["vae_bf16_decode_s"].as_f64()) {
+            ("bf16", Some(e), Some(d)) => e + d,
+            _ => fixed,
+        };
+        let (mut seconds, mut full, mut shallow) = (fixed, 0, 0);
+        let (mut cached_rows, mut last_full) = (None, None);
+        for (step, &t) in timesteps.iter().enumerate() {
+            let rows = if a.guided_at(t, 1000) { 4 } else { 2 };
+            let n = a.cache_interval;
+            let reuse = n > 1
+                && !step.is_multiple_of(n)
+                && cached_rows == Some(rows)
+                && last_full.is_some_and(|f| f >= step - step % n);
+            let scale = rows as f64 / 4.0;
+            if reuse {
+                shallow += 1;
+                seconds += shallow_s * scale;
+            } else {
+                full += 1;
+                seconds += full_s * scale;
+                last_full = Some(step);
+                cached_rows = Some(rows);
+            }
+        }
+        let base_s = *base.get_or_insert(seconds);
+        println!("| {name} | {full} / {shallow} | {:.1} | {:.2} |", seconds / 60.0, seconds / base_s);
+    }
     Ok(())
 }
 

@@ -262,6 +262,10 @@ pub fn min_snr_gamma(s: &str) -> Result<MinSnrGamma, String> {
 /// `--products`: the precision of the diffusion model's large matrix products.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum ProductsArg {
+    /// bf16 where this CPU has AVX-512 BF16, f32 elsewhere, without a note (the default: on
+    /// the small model bf16 moved the normal error by at most 0.03° and the mask IoU by at
+    /// most 0.001, docs/benchmarks.md).
+    Auto,
     /// f32 products and sums (the reference arithmetic).
     F32,
     /// bfloat16 products summed in f32, on a CPU with AVX-512 BF16 (elsewhere f32, with a note).
@@ -338,9 +342,11 @@ pub struct AccelerationArgs {
     /// samples (no effect while --cache-interval is 1).
     #[arg(long, value_name = "D", default_value_t = 1, allow_hyphen_values = true, value_parser = cache_depth)]
     pub cache_depth: usize,
-    /// Precision of the model's large matrix products: f32, or bf16 products summed in f32
-    /// (AVX-512 BF16; on a CPU without it the products stay f32, with a one-line note).
-    #[arg(long, value_enum, default_value_t = ProductsArg::F32)]
+    /// Precision of the model's large matrix products: bf16 products summed in f32 (needs
+    /// AVX-512 BF16; asked for on a CPU without it, the products stay f32 with a one-line
+    /// note), f32 (the reference arithmetic), or auto: bf16 where the CPU has it, silently f32
+    /// elsewhere.
+    #[arg(long, value_enum, default_value_t = ProductsArg::Auto)]
     pub products: ProductsArg,
     /// Fraction of the tokens merged into their most similar neighbour before the
     /// highest-resolution multi-view self-attention and copied back after it, from 0 to 0.9
@@ -388,11 +394,11 @@ impl AccelerationArgs {
     /// (bf16 on a CPU without AVX-512 BF16 stays f32). Call it before any weights load.
     pub fn acceleration(&self) -> wonder3d::Result<(wonder3d::Acceleration, Option<String>)> {
         use wonder3d::diffusion::compute::{PassSettings, Products};
-        let asked = match self.products {
-            ProductsArg::F32 => Products::F32,
-            ProductsArg::Bf16 => Products::Bf16,
+        let (products, note) = match self.products {
+            ProductsArg::Auto => (Products::Bf16.resolve().0, None),
+            ProductsArg::F32 => (Products::F32, None),
+            ProductsArg::Bf16 => Products::Bf16.resolve(),
         };
-        let (products, note) = asked.resolve();
         let acceleration = wonder3d::Acceleration::default()
             .with_guidance_interval(self.guidance_interval)
             .with_cache_interval(self.cache_interval)

@@ -1,7 +1,7 @@
 //! `wonder3d generate IMAGE --weights DIR --out VIEWS_DIR [--camera ortho|persp]
 //! [--scheduler ddim|dpmpp-2m|unipc] [--steps N] [--guidance G] [--eta E] [--seed S] [--draws K] [--device cpu|wgpu]
 //! [--min-confidence C] [--guidance-interval LO,HI] [--cache-interval N] [--cache-depth D]
-//! [--products f32|bf16] [--token-merge R]`: the 6 normal + 6 colour views of a photo or RGBA
+//! [--products auto|f32|bf16] [--token-merge R]`: the 6 normal + 6 colour views of a photo or RGBA
 //! image from the Wonder3D++ multi-view diffusion model, written as a view-set folder with a
 //! contact sheet. The image is prepared as `wonder3d prepare` does first.
 

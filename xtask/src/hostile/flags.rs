@@ -165,7 +165,7 @@ fn bad_values(kind: Kind) -> Vec<String> {
                 .map(String::from)
                 .to_vec()
         }
-        Kind::Products => ["fp8", "F32", "bf16 "].map(String::from).to_vec(),
+        Kind::Products => ["fp8", "F32", "bf16 ", "AUTO"].map(String::from).to_vec(),
     };
     v.extend(["abc", ""].map(String::from));
     v

@@ -42,7 +42,8 @@ pub struct Acceleration {
     /// The skip the shallow branch of a cached pass starts at
     /// ([`crate::models::unet::FeatureCache`]: 0 is `conv_in`; 1 adds the first down layer).
     pub cache_depth: usize,
-    /// How the UNet passes compute: bf16 products, token merging ([`PassSettings`]).
+    /// How the model passes compute — the UNet's and, for bf16 products, the VAE's of the same
+    /// call: bf16 products, token merging ([`PassSettings`]).
     pub pass: PassSettings,
 }
 

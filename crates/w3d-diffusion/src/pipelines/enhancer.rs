@@ -505,9 +505,11 @@ impl EnhancerPipeline {
         let latent_shape = [2, self.vae.config().latent_channels, gh / m, gw / m];
         let posterior = gaussian_noise(latent_shape, options.seed, &device);
         let noise = gaussian_noise(latent_shape, options.seed.wrapping_add(1), &device);
-        let init = self.encode_grids(grids.clone(), posterior)?;
+        // The VAE's products as the denoising's (bf16 where asked).
+        let pass = options.acceleration.pass;
+        let init = compute::with_settings(pass, || self.encode_grids(grids.clone(), posterior))?;
         let latents = self.denoise(init, noise, grids, &conditioning, options, progress)?;
-        self.decode_grids(latents)
+        compute::with_settings(pass, || self.decode_grids(latents))
     }
 }
 

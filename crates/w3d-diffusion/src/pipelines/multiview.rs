@@ -900,8 +900,9 @@ impl MultiViewPipeline {
                 let done = first.saturating_mul(n).saturating_add(i.saturating_mul(count));
                 progress(done, options.draws.saturating_mul(n));
             })?;
+            // The VAE's products as the sampling's (bf16 where asked).
             for latents in latents {
-                draws.push(self.decode(latents, options.camera)?);
+                draws.push(compute::with_settings(options.acceleration.pass, || self.decode(latents, options.camera))?);
             }
             first += count;
         }
