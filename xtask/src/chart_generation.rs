@@ -411,7 +411,6 @@ fn timesteps(config: &SchedulerConfig, sampler: SamplerKind, steps: usize) -> Re
 /// Returns (full passes, shallow passes).
 pub(crate) fn pass_counts(setting: &Setting, guidance: f64, timesteps: &[usize]) -> (usize, usize) {
     let a = &setting.acceleration;
-    let n = a.cache_interval.max(1);
     let mut filled: [Option<usize>; 2] = [None; 2];
     let (mut full, mut shallow) = (0, 0);
     for (step, &t) in timesteps.iter().enumerate() {
@@ -420,7 +419,7 @@ pub(crate) fn pass_counts(setting: &Setting, guidance: f64, timesteps: &[usize])
             if branch == 1 && !guided {
                 continue;
             }
-            let reuse = n > 1 && !step.is_multiple_of(n) && *fill >= Some(step - step % n);
+            let reuse = a.reuses_cache(step, *fill);
             if reuse {
                 shallow += 1;
             } else {
@@ -810,11 +809,7 @@ fn enhancer_table() -> Result<(), String> {
         let (mut cached_rows, mut last_full) = (None, None);
         for (step, &t) in timesteps.iter().enumerate() {
             let rows = if a.guided_at(t, 1000) { 4 } else { 2 };
-            let n = a.cache_interval;
-            let reuse = n > 1
-                && !step.is_multiple_of(n)
-                && cached_rows == Some(rows)
-                && last_full.is_some_and(|f| f >= step - step % n);
+            let reuse = cached_rows == Some(rows) && a.reuses_cache(step, last_full);
             let scale = rows as f64 / 4.0;
             if reuse {
                 shallow += 1;

@@ -93,6 +93,25 @@ impl Acceleration {
         self.guidance_interval[0] <= level && level <= self.guidance_interval[1]
     }
 
+    /// DeepCache's rule: whether a branch whose cache a full pass last filled at step
+    /// `filled_at` reuses it at step `step` — caching is on, `step` is not a multiple of the
+    /// interval, and the cache was filled at or after the last multiple. Every sampling loop
+    /// of the crate decides its passes by this rule.
+    ///
+    /// ```
+    /// use w3d_diffusion::Acceleration;
+    ///
+    /// let every_3 = Acceleration::default().with_cache_interval(3);
+    /// assert!(every_3.reuses_cache(4, Some(3)) && every_3.reuses_cache(5, Some(3)));
+    /// assert!(!every_3.reuses_cache(6, Some(3))); // a multiple of the interval: a full pass
+    /// assert!(!every_3.reuses_cache(4, Some(0)) && !every_3.reuses_cache(1, None)); // stale, empty
+    /// assert!(!Acceleration::default().reuses_cache(1, Some(0))); // interval 1: no caching
+    /// ```
+    pub fn reuses_cache(&self, step: usize, filled_at: Option<usize>) -> bool {
+        let n = self.cache_interval.max(1);
+        n > 1 && !step.is_multiple_of(n) && filled_at >= Some(step - step % n)
+    }
+
     /// Whether every setting is the reference's.
     pub fn is_none(&self) -> bool {
         *self == Self::default()

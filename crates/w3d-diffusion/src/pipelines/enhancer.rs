@@ -422,10 +422,7 @@ impl EnhancerPipeline {
             let rows = if guided { 4 } else { 2 };
             // DeepCache: a step that is not a multiple of the interval reuses the deep features
             // of the last full pass, if that pass had the same rows.
-            let reuse = accel.cache_interval > 1
-                && !done.is_multiple_of(accel.cache_interval)
-                && cache.batch() == Some(rows)
-                && last_full.is_some_and(|f| f >= done - done % accel.cache_interval);
+            let reuse = cache.batch() == Some(rows) && accel.reuses_cache(done, last_full);
             let colour = latents.clone().slice([0..1, 0..c, 0..h, 0..w]);
             let normal = latents.clone().slice([1..2, 0..c, 0..h, 0..w]);
             let tf = [t as f32];

@@ -947,9 +947,7 @@ impl Denoiser<'_> {
         let options = self.options;
         let a = &options.acceleration;
         let guided = options.guidance != 1.0 && a.guided_at(t, self.pipeline.scheduler.num_train_timesteps);
-        let last_full = step - step % a.cache_interval.max(1);
-        let reuse = |filled: Option<usize>| !step.is_multiple_of(a.cache_interval.max(1)) && filled >= Some(last_full);
-        let reuse = [reuse(self.filled_at[0]), reuse(self.filled_at[1])];
+        let reuse = [a.reuses_cache(step, self.filled_at[0]), a.reuses_cache(step, self.filled_at[1])];
         for (branch, filled) in self.filled_at.iter_mut().enumerate() {
             if self.caches.is_some() && !reuse[branch] && (branch == 0 || guided) {
                 *filled = Some(step);
