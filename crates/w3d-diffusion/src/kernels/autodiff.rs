@@ -31,7 +31,8 @@ use std::sync::Arc;
 use burn::tensor::{DType, GradientCheckpointingStrategy, Shape, Tensor, TensorData};
 
 use crate::kernels::attention::{AttentionShape, attention_backward, attention_with_lse};
-use crate::kernels::conv::{ConvShape, conv2d, conv2d_backward};
+use crate::kernels::conv::{conv2d, conv2d_backward};
+use crate::kernels::conv_shape::ConvShape;
 use crate::kernels::geglu::{geglu, geglu_backward};
 use crate::kernels::group_norm::{GroupNormShape, GroupStats, group_norm, group_norm_backward};
 use crate::kernels::linear::{LinearShape, linear, linear_backward};

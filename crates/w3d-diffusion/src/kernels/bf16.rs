@@ -49,6 +49,7 @@ use half::slice::HalfFloatSliceExt;
 use rayon::prelude::*;
 
 use crate::compute::{self, Products, WorkKind};
+use crate::kernels::conv_shape::ConvShape;
 use crate::kernels::dispatch::{cpu_inference_f32, on_cpu_backend};
 
 /// Rows of `C` (and of `A`) one micro-kernel call computes: 14 rows × 2 vectors = 28
@@ -798,47 +799,6 @@ pub(crate) fn linear_with(
     out
 }
 
-/// Shape of a square-kernel convolution with zero padding, images `[batch, c_in, height,
-/// width]`, weight `[c_out, c_in, kernel, kernel]` (PyTorch's layouts).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) struct ConvGeometry {
-    /// Images.
-    pub batch: usize,
-    /// Input channels.
-    pub c_in: usize,
-    /// Input height in pixels.
-    pub height: usize,
-    /// Input width in pixels.
-    pub width: usize,
-    /// Output channels.
-    pub c_out: usize,
-    /// Kernel side in pixels.
-    pub kernel: usize,
-    /// Stride in pixels (at least 1).
-    pub stride: usize,
-    /// Zero padding on each side in pixels.
-    pub padding: usize,
-}
-
-impl ConvGeometry {
-    /// Output height and width (PyTorch's `(h + 2p − k) / s + 1`); `None` when the kernel does
-    /// not fit the padded image, or the stride or kernel is 0.
-    pub(crate) fn output(&self) -> Option<(usize, usize)> {
-        if self.stride == 0 || self.kernel == 0 {
-            return None;
-        }
-        let side = |n: usize| (n + 2 * self.padding).checked_sub(self.kernel).map(|r| r / self.stride + 1);
-        Some((side(self.height)?, side(self.width)?))
-    }
-
-    /// Whether the output has the input's size with stride 1 (`k = 2p + 1`: the UNet's and
-    /// the VAE's 3×3 and 1×1 convolutions), so that each kernel tap's im2col row is the input
-    /// plane shifted by a fixed offset.
-    fn same_size(&self) -> bool {
-        self.stride == 1 && self.kernel == 2 * self.padding + 1
-    }
-}
-
 /// A 2-D convolution (im2col + one product, the column matrix built block by block) with bf16
 /// products: `x` `[batch, c_in, h, w]`, `weight` `[c_out, c_in, k, k]`, `bias` `[c_out]`;
 /// returns `[batch, c_out, h_out, w_out]`. Records `c_out·c_in·k²·batch·h_out·w_out` bf16
@@ -846,18 +806,12 @@ impl ConvGeometry {
 ///
 /// # Panics
 /// If a length does not match `g` or the kernel does not fit the padded image.
-pub(crate) fn conv2d(x: &[f32], weight: Values<'_>, bias: Option<&[f32]>, g: ConvGeometry) -> Vec<f32> {
+pub(crate) fn conv2d(x: &[f32], weight: Values<'_>, bias: Option<&[f32]>, g: ConvShape) -> Vec<f32> {
     conv2d_with(x, weight, bias, g, simd_available())
 }
 
 /// [`conv2d`] with the micro-kernel chosen by `simd` (the tests run both).
-pub(crate) fn conv2d_with(
-    x: &[f32],
-    weight: Values<'_>,
-    bias: Option<&[f32]>,
-    g: ConvGeometry,
-    simd: bool,
-) -> Vec<f32> {
+pub(crate) fn conv2d_with(x: &[f32], weight: Values<'_>, bias: Option<&[f32]>, g: ConvShape, simd: bool) -> Vec<f32> {
     let (ho, wo) = g.output().expect("a kernel that fits the padded image");
     let (m, k, pixels) = (g.c_out, g.c_in * g.kernel * g.kernel, ho * wo);
     let n = g.batch * pixels;
@@ -928,15 +882,15 @@ pub(crate) fn conv2d_with(
 
 /// A block of im2col columns (output pixels of all images, image-major) as the runs it is
 /// made of: whole images' pixel ranges for a same-size convolution
-/// ([`ConvGeometry::same_size`]), runs within one output row otherwise.
+/// ([`ConvShape::same_size`]), runs within one output row otherwise.
 struct ColumnRuns {
-    g: ConvGeometry,
+    g: ConvShape,
     /// `(offset in the block, image, first output pixel, length)`.
     runs: Vec<(usize, usize, usize, usize)>,
 }
 
 impl ColumnRuns {
-    fn new(columns: Range<usize>, g: ConvGeometry) -> Self {
+    fn new(columns: Range<usize>, g: ConvShape) -> Self {
         let (ho, wo) = g.output().expect("checked by conv2d_with");
         let pixels = ho * wo;
         let mut runs = Vec::new();
@@ -1080,16 +1034,16 @@ pub(crate) fn linear_tensor(x: Tensor<2>, weight: Tensor<2>, bias: Option<Tensor
 
 /// The geometry of a convolution of `x` (`[n, c, h, w]`) with `weight` (`[o, c, k, k]`);
 /// `None` where the shapes do not make one (the caller's f32 path then reports it).
-pub(crate) fn conv_geometry(x: &Tensor<4>, weight: &Tensor<4>, stride: usize, padding: usize) -> Option<ConvGeometry> {
+pub(crate) fn conv_geometry(x: &Tensor<4>, weight: &Tensor<4>, stride: usize, padding: usize) -> Option<ConvShape> {
     let [batch, c_in, height, width] = x.dims();
     let [c_out, w_in, kernel, kernel_w] = weight.dims();
-    let g = ConvGeometry { batch, c_in, height, width, c_out, kernel, stride, padding };
+    let g = ConvShape { batch, c_in, height, width, c_out, kernel, stride, padding };
     (w_in == c_in && kernel == kernel_w && g.output().is_some()).then_some(g)
 }
 
 /// [`conv2d`] on tensors: `x` `[n, c, h, w]`, `weight` `[o, c, k, k]`, `bias` `[o]` (as
 /// [`applies`] and [`conv_geometry`] accepted them).
-pub(crate) fn conv2d_tensor(x: Tensor<4>, weight: Tensor<4>, bias: Option<Tensor<1>>, g: ConvGeometry) -> Tensor<4> {
+pub(crate) fn conv2d_tensor(x: Tensor<4>, weight: Tensor<4>, bias: Option<Tensor<1>>, g: ConvShape) -> Tensor<4> {
     let (ho, wo) = g.output().expect("checked by conv_geometry");
     let device = x.device();
     let bias = bias.map(|b| with_values(b, |v| v.to_f32_vec()));
@@ -1238,7 +1192,7 @@ mod tests {
 
     /// The convolution by loops over the bf16-rounded factors, in f64, with the sums of the
     /// products' magnitudes.
-    fn conv_reference(x: &[f32], w: &[f32], bias: &[f32], g: ConvGeometry) -> (Vec<f64>, Vec<f64>) {
+    fn conv_reference(x: &[f32], w: &[f32], bias: &[f32], g: ConvShape) -> (Vec<f64>, Vec<f64>) {
         let (ho, wo) = g.output().unwrap();
         let (k, s, p) = (g.kernel, g.stride, g.padding);
         let mut out = vec![0.0; g.batch * g.c_out * ho * wo];
@@ -1295,7 +1249,7 @@ mod tests {
         ];
         for simd in kernels() {
             for (s, &[batch, c_in, height, width, c_out, kernel, stride, padding]) in shapes.iter().enumerate() {
-                let g = ConvGeometry { batch, c_in, height, width, c_out, kernel, stride, padding };
+                let g = ConvShape { batch, c_in, height, width, c_out, kernel, stride, padding };
                 let x = values(batch * c_in * height * width, 40 + s as u64);
                 let w = values(c_out * c_in * kernel * kernel, 50 + s as u64);
                 let bias = values(c_out, 60 + s as u64);
@@ -1324,7 +1278,7 @@ mod tests {
             let (kernel, stride, padding) = (1 + draw(5), 1 + draw(3), draw(4));
             let (height, width) = (1 + draw(12), 1 + draw(12));
             let (batch, c_in, c_out) = (1 + draw(3), 1 + draw(6), 1 + draw(33));
-            let g = ConvGeometry { batch, c_in, height, width, c_out, kernel, stride, padding };
+            let g = ConvShape { batch, c_in, height, width, c_out, kernel, stride, padding };
             if g.output().is_none() {
                 continue;
             }

@@ -11,54 +11,8 @@
 
 use rayon::prelude::*;
 
+use crate::kernels::conv_shape::ConvShape;
 use crate::kernels::gemm::{MatMut, MatRef, gemm_f32};
-
-/// Shape of a square-kernel convolution with zero padding.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) struct ConvShape {
-    /// Images.
-    pub batch: usize,
-    /// Input channels.
-    pub c_in: usize,
-    /// Input height in pixels.
-    pub height: usize,
-    /// Input width in pixels.
-    pub width: usize,
-    /// Output channels.
-    pub c_out: usize,
-    /// Kernel side in pixels.
-    pub kernel: usize,
-    /// Stride in pixels.
-    pub stride: usize,
-    /// Zero padding on each side in pixels.
-    pub padding: usize,
-}
-
-impl ConvShape {
-    /// Output height and width (PyTorch's `(h + 2p − k) / s + 1`); `None` when the kernel does
-    /// not fit the padded image or the stride is 0.
-    pub fn output(&self) -> Option<(usize, usize)> {
-        let side = |n: usize| (n + 2 * self.padding).checked_sub(self.kernel).map(|r| r / self.stride + 1);
-        if self.stride == 0 || self.kernel == 0 {
-            return None;
-        }
-        Some((side(self.height)?, side(self.width)?))
-    }
-
-    fn out_pixels(&self) -> usize {
-        self.output().map_or(0, |(h, w)| h * w)
-    }
-
-    /// Rows of the column matrix: `c · k²`.
-    fn patch(&self) -> usize {
-        self.c_in * self.kernel * self.kernel
-    }
-
-    /// Whether the column matrix is the image itself (1×1, stride 1, no padding).
-    fn pointwise(&self) -> bool {
-        self.kernel == 1 && self.stride == 1 && self.padding == 0
-    }
-}
 
 /// `x` convolved with `weight` plus `bias`: `[n, o, ho, wo]`.
 ///

@@ -5,7 +5,9 @@
 //! takes a call ([`dispatch`]); in training, [`autodiff`] wraps the kernels as differentiable
 //! operations on Burn's autodiff backend.
 
-// The GEMM building block, running work on the pool, and the tensor-level dispatch.
+// The GEMM building block, the convolutions' shape, running work on the pool, and the
+// tensor-level dispatch.
+pub(crate) mod conv_shape;
 pub(crate) mod dispatch;
 pub(crate) mod gemm;
 pub(crate) mod pool;

@@ -496,11 +496,10 @@ mod tests {
     #[test]
     #[ignore = "timing at real size (seconds); run with --ignored --nocapture"]
     fn real_size_merged_attention_timing() {
-        use burn::module::Param;
+        use crate::kernels::attention::{AttentionShape, attention};
+        use crate::kernels::dispatch::cpu_values;
 
-        use crate::nn::{Linear, multi_head_attention};
-
-        let device = crate::default_device();
+        let device = crate::device::default_device();
         let shape = ViewTokens { sequences: 2, views: 6, height: 32, width: 32, channels: 320 };
         let (n, c, heads) = (shape.tokens(), shape.channels, 8);
         // Smooth-ish tokens: a per-view random field plus a slow ramp over the grid, so the
@@ -513,17 +512,27 @@ mod tests {
         let tensor = |values: Vec<f32>, tokens: usize| {
             Tensor::<3>::from_data(TensorData::new(values, [shape.sequences, tokens, c]), &device)
         };
-        let linear = |seed| Linear {
-            weight: Param::from_tensor(Tensor::from_data(
+        // The layer's pieces as the kernels and Burn's products compute them at inference.
+        let weight = |seed| {
+            Tensor::<2>::from_data(
                 TensorData::new(noise(c * c, seed).iter().map(|v| v * 0.05).collect(), [c, c]),
                 &device,
-            )),
-            bias: None,
+            )
         };
-        let (wq, wk, wv, wo) = (linear(21), linear(22), linear(23), linear(24));
+        let (wq, wk, wv, wo) = (weight(21), weight(22), weight(23), weight(24));
+        let project = |t: Tensor<3>, w: &Tensor<2>| {
+            let [b, tokens, width] = t.dims();
+            t.reshape([b * tokens, width]).matmul(w.clone()).reshape([b, tokens, width])
+        };
+        let multi_head_attention = |q: Tensor<3>, k: Tensor<3>, v: Tensor<3>, heads: usize| {
+            let [batch, queries, width] = q.dims();
+            let shape = AttentionShape { batch, queries, keys: k.dims()[1], heads, head_dim: width / heads };
+            let out = attention(&cpu_values(q), &cpu_values(k), &cpu_values(v), shape);
+            Tensor::<3>::from_data(TensorData::new(out, [batch, queries, width]), &device)
+        };
         let layer = |t: Tensor<3>| {
-            let (q, k, v) = (wq.forward(t.clone()), wk.forward(t.clone()), wv.forward(t));
-            wo.forward(multi_head_attention(q, k, v, heads))
+            let (q, k, v) = (project(t.clone(), &wq), project(t.clone(), &wk), project(t, &wv));
+            project(multi_head_attention(q, k, v, heads), &wo)
         };
         let sync = |t: Tensor<3>| std::hint::black_box(t.into_data());
         let runs = 3;
@@ -533,7 +542,7 @@ mod tests {
         });
         let projections = best_of(runs, || {
             for w in [&wq, &wk, &wv, &wo] {
-                sync(w.forward(full.clone()));
+                sync(project(full.clone(), w));
             }
         });
         let plain = best_of(runs, || {
@@ -562,7 +571,7 @@ mod tests {
             });
             let projections = best_of(runs, || {
                 for w in [&wq, &wk, &wv, &wo] {
-                    sync(w.forward(reduced.clone()));
+                    sync(project(reduced.clone(), w));
                 }
             });
             let out = map.merge(&x);
