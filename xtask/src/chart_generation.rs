@@ -30,7 +30,7 @@ use wonder3d::eval::{EvalOptions, evaluate};
 use wonder3d::recon::{Preset, ReconOptions, reconstruct};
 use wonder3d::{CameraType, Image};
 
-use crate::eval_small::{object_name, scored_sample};
+use crate::eval_small::{object_name, scored_object};
 use crate::train_small::TRAIN_MESHES;
 
 fn err(e: impl std::fmt::Display) -> String {
@@ -471,16 +471,8 @@ fn quality(picked: &[Setting], guidances: &[f64], model: &Path) -> Result<(), St
     // The truth of every object, prepared once.
     let mut objects = Vec::new();
     for mesh_path in TRAIN_MESHES {
-        let (dataset, posed) = scored_sample(&root.join(mesh_path), size)?;
-        let sample = dataset.samples().next().cloned().ok_or("no sample")?;
-        let truth = dataset.render_sample(0).map_err(err)?;
-        let front = &truth.views()[0];
-        let colour = front.colour.as_ref().ok_or("no colour view")?;
-        let rgba: Vec<f32> =
-            colour.data().chunks_exact(3).zip(front.mask.data()).flat_map(|(c, &m)| [c[0], c[1], c[2], m]).collect();
-        let rgba = Image::new(size, size, 4, rgba).map_err(err)?;
-        let camera = if sample.camera.name() == "persp" { CameraType::Perspective } else { CameraType::Orthographic };
-        objects.push((object_name(mesh_path), rgba, camera, truth, posed));
+        let o = scored_object(&root.join(mesh_path), size)?;
+        objects.push((object_name(mesh_path), o.rgba, o.camera, o.truth, o.posed));
     }
     for setting in picked {
         for &guidance in guidances {

@@ -124,6 +124,31 @@ pub(crate) fn scored_sample(path: &Path, size: u32) -> Result<(Dataset, Mesh), S
     Ok((dataset, posed))
 }
 
+/// An object as the small model is scored on it: its sample, the true views, the posed mesh
+/// in the unit cube, the model's input (the true front colour view with its mask as alpha) and
+/// the sample's camera type.
+pub(crate) struct ScoredObject {
+    pub sample: wonder3d::dataset::Sample,
+    pub truth: ViewSet,
+    pub posed: Mesh,
+    pub rgba: Image,
+    pub camera: CameraType,
+}
+
+/// The [`ScoredObject`] of the mesh at `path`, at the model's image `size`.
+pub(crate) fn scored_object(path: &Path, size: u32) -> Result<ScoredObject, String> {
+    let (dataset, posed) = scored_sample(path, size)?;
+    let sample = dataset.samples().next().cloned().ok_or("no sample")?;
+    let truth = dataset.render_sample(0).map_err(err)?;
+    let front = &truth.views()[0];
+    let colour = front.colour.as_ref().ok_or("no colour view")?;
+    let rgba: Vec<f32> =
+        colour.data().chunks_exact(3).zip(front.mask.data()).flat_map(|(c, &m)| [c[0], c[1], c[2], m]).collect();
+    let rgba = Image::new(size, size, 4, rgba).map_err(err)?;
+    let camera = if sample.camera.name() == "persp" { CameraType::Perspective } else { CameraType::Orthographic };
+    Ok(ScoredObject { sample, truth, posed, rgba, camera })
+}
+
 /// How `eval-small` samples (the command's flags).
 pub(crate) struct Sampling {
     pub sampler: String,
@@ -229,18 +254,7 @@ pub(crate) fn run(
     let mut records = Vec::new();
     for mesh_path in picks {
         let held_out = mesh_path == HELD_OUT_MESH;
-        let (dataset, posed) = scored_sample(&root.join(mesh_path), size)?;
-        let sample = dataset.samples().next().cloned().ok_or("no sample")?;
-        let truth = dataset.render_sample(0).map_err(err)?;
-        let front = &truth.views()[0];
-        let colour = front.colour.as_ref().ok_or("no colour view")?;
-        let rgba: Vec<f32> =
-            colour.data().chunks_exact(3).zip(front.mask.data()).flat_map(|(c, &m)| [c[0], c[1], c[2], m]).collect();
-        let rgba = Image::new(size, size, 4, rgba).map_err(err)?;
-        let camera = match sample.camera.name() {
-            "persp" => CameraType::Perspective,
-            _ => CameraType::Orthographic,
-        };
+        let ScoredObject { sample, truth, posed, rgba, camera } = scored_object(&root.join(mesh_path), size)?;
         let sample_options = SampleOptions {
             sampler,
             steps,
