@@ -125,12 +125,15 @@ pub(crate) fn run(part: &str, list: Option<&str>, guidances: &[f64], model: &Pat
         "chart" => chart(),
         "enhancer-timing" => enhancer_timing(),
         "enhancer-vae" => enhancer_vae_bf16(),
+        "end-to-end" => end_to_end(),
         "all" => {
             timing()?;
             quality(&picked, guidances, model)?;
             chart()
         }
-        other => Err(format!("--part: timing, enhancer-timing, enhancer-vae, quality, chart or all (found {other:?})")),
+        other => Err(format!(
+            "--part: timing, enhancer-timing, enhancer-vae, end-to-end, quality, chart or all (found {other:?})"
+        )),
     }
 }
 
@@ -374,6 +377,64 @@ fn enhancer_timing() -> Result<(), String> {
         "peak_rss_gib": peak_rss() / (1u64 << 30) as f64,
     });
     let path = out_dir().join("enhancer_timing.json");
+    std::fs::write(&path, serde_json::to_vec_pretty(&record).map_err(err)?)
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    eprintln!("wrote {}", path.display());
+    Ok(())
+}
+
+/// Two whole real-size generations side by side in one process (random f16 weights): today's
+/// default (20 DPM-Solver++(2M) steps at guidance 2, f32 products) and the recommended fast
+/// setting (DeepCache every 3, bf16 products, token merging 0.5), each conditioning, sampling
+/// and the 12 decodes, with the peak memory of each (`end_to_end.json`; about 14 min).
+fn end_to_end() -> Result<(), String> {
+    let root = crate::workspace::workspace_root();
+    let config = |p: &str| root.join("crates/w3d-diffusion/configs/wonder3d").join(p);
+    let device = wonder3d::diffusion::default_device();
+    let storage = WeightStorage::F16;
+    let unet =
+        UNet::random_with(&UNetConfig::from_file(config("unet_mv/config.json")).map_err(err)?, 1, &device, storage)
+            .map_err(err)?;
+    let vae = Vae::random_with(&VaeConfig::from_file(config("vae/config.json")).map_err(err)?, 2, &device, storage)
+        .map_err(err)?;
+    let clip_config = ClipVisionConfig::from_file(config("image_encoder/config.json")).map_err(err)?;
+    let clip = ClipVision::random_with(&clip_config, 3, &device, storage).map_err(err)?;
+    let scheduler = SchedulerConfig::from_file(config("scheduler/scheduler_config.json")).map_err(err)?;
+    let pipeline = MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)?;
+    let image = Image::filled(256, 256, 3, 0.5).map_err(err)?;
+    let all = settings();
+    let mut runs = Vec::new();
+    for name in ["dpm20-cache3-bf16-tome", "dpm20"] {
+        let setting = all.iter().find(|s| s.name == name).ok_or("no setting")?;
+        let options = SampleOptions {
+            sampler: setting.sampler,
+            steps: setting.steps,
+            guidance: 2.0,
+            acceleration: setting.acceleration,
+            ..SampleOptions::default()
+        };
+        let reset = std::fs::write("/proc/self/clear_refs", "5").is_ok();
+        let t = Instant::now();
+        let cond = pipeline.condition(&image, &device).map_err(err)?;
+        let views = pipeline.sample_views(&cond, &options, &device, &mut |_, _| {}).map_err(err)?;
+        let seconds = t.elapsed().as_secs_f64();
+        if views.normals.len() != 6 {
+            return Err("expected 6 normal views".into());
+        }
+        let peak = peak_rss() / (1u64 << 30) as f64;
+        eprintln!(
+            "{name} ({}): whole generation {seconds:.1} s = {:.2} min, peak {peak:.2} GiB (reset {reset}; load {})",
+            describe(setting),
+            seconds / 60.0,
+            load_average()
+        );
+        runs.push(json!({"setting": name, "description": describe(setting), "seconds": seconds, "peak_gib": peak}));
+    }
+    let record = json!({
+        "date": date(), "cpu": crate::workspace::cpu_model(), "threads": rayon_threads(), "guidance": 2.0,
+        "runs": runs,
+    });
+    let path = out_dir().join("end_to_end.json");
     std::fs::write(&path, serde_json::to_vec_pretty(&record).map_err(err)?)
         .map_err(|e| format!("{}: {e}", path.display()))?;
     eprintln!("wrote {}", path.display());
