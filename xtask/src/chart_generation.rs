@@ -158,22 +158,28 @@ fn load_average() -> String {
         .join(" ")
 }
 
-/// The real-size timings (see the module docs).
-fn timing() -> Result<(), String> {
+/// The real-size Wonder3D++ multi-view pipeline (`configs/wonder3d`) with random f16 weights:
+/// time does not depend on the values.
+fn real_size_pipeline(device: &wonder3d::diffusion::Device) -> Result<MultiViewPipeline, String> {
     let root = crate::workspace::workspace_root();
     let config = |p: &str| root.join("crates/w3d-diffusion/configs/wonder3d").join(p);
-    let device = wonder3d::diffusion::default_device();
     let storage = WeightStorage::F16;
-    let t = Instant::now();
     let unet =
-        UNet::random_with(&UNetConfig::from_file(config("unet_mv/config.json")).map_err(err)?, 1, &device, storage)
+        UNet::random_with(&UNetConfig::from_file(config("unet_mv/config.json")).map_err(err)?, 1, device, storage)
             .map_err(err)?;
-    let vae = Vae::random_with(&VaeConfig::from_file(config("vae/config.json")).map_err(err)?, 2, &device, storage)
+    let vae = Vae::random_with(&VaeConfig::from_file(config("vae/config.json")).map_err(err)?, 2, device, storage)
         .map_err(err)?;
     let clip_config = ClipVisionConfig::from_file(config("image_encoder/config.json")).map_err(err)?;
-    let clip = ClipVision::random_with(&clip_config, 3, &device, storage).map_err(err)?;
+    let clip = ClipVision::random_with(&clip_config, 3, device, storage).map_err(err)?;
     let scheduler = SchedulerConfig::from_file(config("scheduler/scheduler_config.json")).map_err(err)?;
-    let pipeline = MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)?;
+    MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)
+}
+
+/// The real-size timings (see the module docs).
+fn timing() -> Result<(), String> {
+    let device = wonder3d::diffusion::default_device();
+    let t = Instant::now();
+    let pipeline = real_size_pipeline(&device)?;
     eprintln!("real-size models built in {:.1} s (f16 weights, random)", t.elapsed().as_secs_f64());
 
     let image = Image::filled(256, 256, 3, 0.5).map_err(err)?;
@@ -388,19 +394,8 @@ fn enhancer_timing() -> Result<(), String> {
 /// setting (DeepCache every 3, bf16 products, token merging 0.5), each conditioning, sampling
 /// and the 12 decodes, with the peak memory of each (`end_to_end.json`; about 14 min).
 fn end_to_end() -> Result<(), String> {
-    let root = crate::workspace::workspace_root();
-    let config = |p: &str| root.join("crates/w3d-diffusion/configs/wonder3d").join(p);
     let device = wonder3d::diffusion::default_device();
-    let storage = WeightStorage::F16;
-    let unet =
-        UNet::random_with(&UNetConfig::from_file(config("unet_mv/config.json")).map_err(err)?, 1, &device, storage)
-            .map_err(err)?;
-    let vae = Vae::random_with(&VaeConfig::from_file(config("vae/config.json")).map_err(err)?, 2, &device, storage)
-        .map_err(err)?;
-    let clip_config = ClipVisionConfig::from_file(config("image_encoder/config.json")).map_err(err)?;
-    let clip = ClipVision::random_with(&clip_config, 3, &device, storage).map_err(err)?;
-    let scheduler = SchedulerConfig::from_file(config("scheduler/scheduler_config.json")).map_err(err)?;
-    let pipeline = MultiViewPipeline::new(unet, vae, clip, scheduler).map_err(err)?;
+    let pipeline = real_size_pipeline(&device)?;
     let image = Image::filled(256, 256, 3, 0.5).map_err(err)?;
     let all = settings();
     let mut runs = Vec::new();
