@@ -54,9 +54,9 @@ pub struct BatchArgs {
     /// Keep the generated views of image items in <out>/<id>/views/.
     #[arg(long)]
     keep_views: bool,
-    /// Model directory for image items (docs/weights.md); not needed when every item is a
-    /// view-set folder. Loaded once for the whole batch.
-    #[arg(long)]
+    /// Model directory or Hugging Face Hub id for image items (docs/weights.md); not needed
+    /// when every item is a view-set folder. Loaded (and downloaded) once for the whole batch.
+    #[arg(long, value_name = "DIR|HUB_ID")]
     weights: Option<PathBuf>,
     #[command(flatten)]
     sampling: SamplingArgs,
@@ -112,8 +112,10 @@ pub fn run(args: &BatchArgs) -> Result<()> {
     if let Some(weights) = &args.weights
         && !needs_model
     {
-        // Not loaded, yet a typo must not pass: the folder must be there.
-        if !weights.join("unet").is_dir() {
+        // Not loaded (nor downloaded), yet a typo must not pass: the folder must be there, or
+        // the Hub id well-formed.
+        check_weights(weights)?;
+        if weights.is_dir() && !weights.join("unet").is_dir() {
             return Err(Error::invalid(
                 "--weights",
                 format!("a model folder with unet/, vae/, image_encoder/ (docs/weights.md), got {}", weights.display()),
@@ -191,10 +193,31 @@ pub fn run(args: &BatchArgs) -> Result<()> {
 fn with_model(batch: Batch, args: &BatchArgs) -> Result<Batch> {
     Ok(match &args.weights {
         Some(weights) => {
-            batch.with_model(crate::generate::load(weights, &args.sampling, &wonder3d::SampleOptions::default())?)
+            let bar = crate::progress::download_bar(args.quiet);
+            let model = crate::generate::load(weights, &args.sampling, &wonder3d::SampleOptions::default(), &bar)?;
+            bar.finish_and_clear();
+            batch.with_model(model)
         }
         None => batch,
     })
+}
+
+/// Fails unless `--weights` is an existing folder or a well-formed Hub id.
+#[cfg(feature = "diffusion")]
+fn check_weights(weights: &std::path::Path) -> Result<()> {
+    crate::weights::check("--weights", weights)
+}
+
+/// Without the model (and so without Hub downloads) `--weights` must be a folder.
+#[cfg(not(feature = "diffusion"))]
+fn check_weights(weights: &std::path::Path) -> Result<()> {
+    match weights.is_dir() {
+        true => Ok(()),
+        false => Err(Error::invalid(
+            "--weights",
+            format!("a model folder with unet/, vae/, image_encoder/ (docs/weights.md), got {}", weights.display()),
+        )),
+    }
 }
 
 #[cfg(not(feature = "diffusion"))]

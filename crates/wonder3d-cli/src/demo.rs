@@ -32,9 +32,9 @@ pub struct DemoArgs {
     /// report (needs a binary with the diffusion model).
     #[arg(long)]
     from_image: bool,
-    /// With --from-image: the model directory (default: the small model trained here,
-    /// `assets/model-small` of the repository; docs/training.md).
-    #[arg(long, requires = "from_image")]
+    /// With --from-image: the model directory or Hugging Face Hub id (docs/weights.md; default:
+    /// the small model trained here, `assets/model-small` of the repository; docs/training.md).
+    #[arg(long, requires = "from_image", value_name = "DIR|HUB_ID")]
     weights: Option<PathBuf>,
     /// With --from-image: reconstructions tried from the generated views, each with its own remesher
     /// seed; the one that fits the views best is kept (docs/accuracy.md, "Several starts"); one only when the
@@ -118,7 +118,7 @@ fn from_image(args: &DemoArgs, options: &DemoOptions) -> Result<wonder3d::demo::
     };
     let bar = progress::bar(args.quiet)?;
     bar.set_prefix("load");
-    let generator = crate::generate::load(&weights, &args.sampling, &defaults)?;
+    let generator = crate::generate::load(&weights, &args.sampling, &defaults, &bar)?;
     let demo = wonder3d::demo::run_demo_from_image(generator, options, &mut progress::follow(&bar))?;
     bar.finish_and_clear();
     Ok(demo)

@@ -15,8 +15,11 @@ use crate::args::{AccelerationArgs, CameraArg, DeviceArg, SchedulerArg};
 #[derive(clap::Args)]
 #[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
 pub struct ModelArgs {
-    /// Model directory (unet/, vae/, image_encoder/, scheduler/), as published (docs/weights.md).
-    #[arg(long)]
+    /// Model directory (unet/, vae/, image_encoder/, scheduler/), as published (docs/weights.md),
+    /// or a Hugging Face Hub id owner/name[@revision][:sub/folder] (e.g.
+    /// flamehaze1115/Wonder3D_plus), downloaded once into the Hugging Face cache (HF_HOME,
+    /// HF_ENDPOINT, HF_HUB_OFFLINE); an existing folder always wins.
+    #[arg(long, value_name = "DIR|HUB_ID")]
     pub weights: PathBuf,
     #[command(flatten)]
     pub sampling: SamplingArgs,
@@ -108,12 +111,18 @@ mod with_model {
     use crate::progress;
     use wonder3d::{CameraType, ComputeDevice, Generator, SampleOptions, SamplerKind};
 
-    /// Loads the model in `weights` onto the device of `args`, with its sampling options
-    /// (the guidance and draws of `defaults` where the command line leaves them out). The
-    /// accelerations are checked and the device opens first, so a bad value or a missing GPU
-    /// backend is named before the weights are read; a GPU is named on stderr (with a warning
-    /// when it is a software adapter), and so, in one line, are bf16 products this CPU lacks.
-    pub fn load(weights: &std::path::Path, args: &SamplingArgs, defaults: &SampleOptions) -> Result<Generator> {
+    /// Loads the model of `--weights` (a folder, or a Hub id downloaded first with its bytes on
+    /// `bar`) onto the device of `args`, with its sampling options (the guidance and draws of
+    /// `defaults` where the command line leaves them out). The accelerations are checked and
+    /// the device opens first, so a bad value or a missing GPU backend is named before the
+    /// weights are downloaded or read; a GPU is named on stderr (with a warning when it is a
+    /// software adapter), and so, in one line, are bf16 products this CPU lacks.
+    pub fn load(
+        weights: &std::path::Path,
+        args: &SamplingArgs,
+        defaults: &SampleOptions,
+        bar: &indicatif::ProgressBar,
+    ) -> Result<Generator> {
         let (acceleration, note) = args.acceleration.acceleration()?;
         let device = args.device.compute_device().open()?;
         if device.kind != ComputeDevice::Cpu {
@@ -123,7 +132,9 @@ mod with_model {
             eprintln!("note: {note}");
         }
         let options = SampleOptions { acceleration, ..sample_options(args, defaults) };
-        let generator = Generator::load_on(weights, device.device)?
+        let dir = crate::weights::resolve("--weights", weights, wonder3d::weights::Layout::MultiView, bar)?;
+        bar.set_message(format!("weights from {}", dir.display()));
+        let generator = Generator::load_on(&dir, device.device)?
             .with_options(options)
             .with_prepare_options(args.prepare_options()?);
         // The cache depth needs the model: checked once it is loaded, before any sampling (the
@@ -181,8 +192,7 @@ mod with_model {
         let rgba = prepared.rgba;
         let bar = progress::bar(args.quiet)?;
         bar.set_prefix("load");
-        bar.set_message(format!("weights from {}", args.model.weights.display()));
-        let generator = load(&args.model.weights, &args.model.sampling, &SampleOptions::default())?;
+        let generator = load(&args.model.weights, &args.model.sampling, &SampleOptions::default(), &bar)?;
         let generated = generator.generate(&rgba, &mut progress::follow(&bar))?;
         bar.finish_and_clear();
         generated.save(&args.out)?;

@@ -12,15 +12,18 @@
 //! wonder3d prepare mug.jpg --out mug.png --mask-out mask.png  # photo -> framed RGBA (background removed)
 //! wonder3d generate cup.jpg --weights ckpts --out views/cup  # 6 views x {normal, colour} (docs/weights.md)
 //! wonder3d run cup.jpg --weights ckpts --out cup.glb          # prepare -> generate -> reconstruct -> texture
+//! wonder3d run cup.jpg --weights flamehaze1115/Wonder3D_plus --out cup.glb  # weights by Hub id, downloaded once (docs/weights.md)
 //! wonder3d batch items.txt --out results --jobs 2 [--weights ckpts] [--shard 0/8] [--resume]  # many objects
 //! wonder3d dataset assets/spot.obj assets/torus.obj --out train --samples 4 --size 256  # a training set (docs/training.md)
 //! wonder3d train --stage 2 --data train --init model --out run2 --steps 1000  # train the multi-view UNet
 //! ```
 
 // Layers, bottom-up: each group imports only from itself and the groups above it.
-// Shared argument parsers and progress bars.
+// Shared argument parsers, progress bars, model folders by path or Hub id.
 mod args;
 mod progress;
+#[cfg(feature = "diffusion")]
+mod weights;
 
 // Commands that others build on, each on the one before: prepare (photo → RGBA), generate
 // (the model's options and loading), refine (enhancers and the refinement loop).

@@ -10,13 +10,31 @@ use wonder3d::{Error, Progress, Result};
 /// message (hidden when `quiet`).
 pub fn bar(quiet: bool) -> Result<ProgressBar> {
     let bar = if quiet { ProgressBar::hidden() } else { ProgressBar::new(1) };
-    bar.set_style(
-        ProgressStyle::with_template("{prefix:>10} [{bar:40}] {pos}/{len} {msg} ({elapsed})")
-            .map_err(|e| Error::invalid("progress template", e.to_string()))?
-            .progress_chars("=> "),
-    );
+    bar.set_style(style()?);
     bar.enable_steady_tick(Duration::from_millis(200));
     Ok(bar)
+}
+
+/// The style of [`bar`]: stage, units, message, elapsed time.
+pub fn style() -> Result<ProgressStyle> {
+    Ok(ProgressStyle::with_template("{prefix:>10} [{bar:40}] {pos}/{len} {msg} ({elapsed})")
+        .map_err(|e| Error::invalid("progress template", e.to_string()))?
+        .progress_chars("=> "))
+}
+
+/// The style of a download: bytes, rate and time left.
+#[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
+pub fn bytes_style() -> Result<ProgressStyle> {
+    Ok(ProgressStyle::with_template("{prefix:>10} [{bar:40}] {bytes}/{total_bytes} {bytes_per_sec} ETA {eta} {msg}")
+        .map_err(|e| Error::invalid("progress template", e.to_string()))?
+        .progress_chars("=> "))
+}
+
+/// A bar for a download alone (hidden when `quiet`): drawn only once there is something to
+/// download ([`crate::weights::resolve`] styles it), so a local folder shows nothing.
+#[cfg_attr(not(feature = "diffusion"), allow(dead_code))]
+pub fn download_bar(quiet: bool) -> ProgressBar {
+    if quiet { ProgressBar::hidden() } else { ProgressBar::new(0) }
 }
 
 /// A progress callback that drives `bar`.

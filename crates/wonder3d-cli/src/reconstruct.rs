@@ -52,7 +52,7 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
     check_distinct(&outputs, &view_files.iter().map(|f| ("VIEWS", f.as_path())).collect::<Vec<_>>())?;
     let texture = wonder3d::TextureOptions::default().with_size(args.texture_size);
     texture.validate()?;
-    let iterations = args.refinement.check()?;
+    let iterations = args.refinement.check(args.quiet)?;
     let views = ViewSet::load(&args.views)?;
     let bar = progress::bar(args.quiet)?;
     let output = Pipeline::new()

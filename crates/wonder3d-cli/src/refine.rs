@@ -22,15 +22,17 @@ pub enum EnhancerArg {
     Identity,
     /// Renders of a known mesh (the best any enhancer could do).
     Oracle(PathBuf),
-    /// The diffusion enhancer, loaded from a model directory (`docs/weights.md`, "The enhancer").
+    /// The diffusion enhancer, loaded from a model directory or a Hugging Face Hub id
+    /// (`docs/weights.md`, "The enhancer").
     Diffusion(PathBuf),
 }
 
-/// Parses `--enhancer`: `identity`, `oracle:MESH` or the directory of a diffusion enhancer.
+/// Parses `--enhancer`: `identity`, `oracle:MESH` or the directory (or Hub id) of a diffusion
+/// enhancer.
 pub fn enhancer(s: &str) -> std::result::Result<EnhancerArg, String> {
     match s {
         "identity" => Ok(EnhancerArg::Identity),
-        "" => Err("identity, oracle:MESH or an enhancer model directory (found an empty value)".into()),
+        "" => Err("identity, oracle:MESH, an enhancer model directory or a Hub id (found an empty value)".into()),
         _ => match s.strip_prefix("oracle:") {
             Some("") => Err("oracle:MESH needs a mesh file after the colon".into()),
             Some(mesh) => Ok(EnhancerArg::Oracle(PathBuf::from(mesh))),
@@ -50,12 +52,13 @@ pub struct RefineArgs {
     /// render` or `wonder3d generate` writes one); its rig must have the front, right, back and
     /// left views.
     views: PathBuf,
-    /// Enhancer: a model directory (the diffusion enhancer: Stable Diffusion 1.5 + Wonder3D++'s
-    /// ControlNet + IP-Adapter, layout in docs/weights.md, "The enhancer"), `identity` (the
-    /// renders of the current mesh, unchanged) or `oracle:MESH` (renders of MESH, oriented
-    /// outward and normalised into the unit cube as `wonder3d render` does; `--no-normalize`
-    /// keeps its coordinates).
-    #[arg(long, value_parser = enhancer)]
+    /// Enhancer: a model directory or a Hugging Face Hub id owner/name[@revision][:sub/folder]
+    /// of one, downloaded once into the Hugging Face cache (the diffusion enhancer: Stable
+    /// Diffusion 1.5 + Wonder3D++'s ControlNet + IP-Adapter, layout in docs/weights.md, "The
+    /// enhancer"), `identity` (the renders of the current mesh, unchanged) or `oracle:MESH`
+    /// (renders of MESH, oriented outward and normalised into the unit cube as `wonder3d render`
+    /// does; `--no-normalize` keeps its coordinates).
+    #[arg(long, value_parser = enhancer, value_name = "DIR|HUB_ID|identity|oracle:MESH")]
     enhancer: EnhancerArg,
     /// Output file: `.glb` (embedded texture), `.obj` (+ `.mtl` + `.png`) or `.ply`.
     #[arg(long)]
@@ -133,7 +136,7 @@ pub fn run(args: &RefineArgs) -> Result<()> {
             }
             Box::new(OracleEnhancer::new(truth))
         }
-        EnhancerArg::Diffusion(dir) => diffusion_enhancer(dir, None, Some(&args.acceleration))?,
+        EnhancerArg::Diffusion(dir) => diffusion_enhancer(dir, None, Some(&args.acceleration), args.quiet)?,
     };
     let views = ViewSet::load(&args.views)?;
     // What the views see of the mesh is about both inputs: name them.
@@ -209,9 +212,11 @@ pub fn refine_with_bar(
 /// refinement after the coarse mesh, with the diffusion enhancer.
 #[derive(clap::Args)]
 pub struct RefineAfterArgs {
-    /// Refine the mesh with the diffusion enhancer in this directory (Stable Diffusion 1.5 +
-    /// Wonder3D++'s ControlNet + IP-Adapter; docs/weights.md, "The enhancer"; docs/refinement.md).
-    #[arg(long)]
+    /// Refine the mesh with the diffusion enhancer in this directory, or of this Hugging Face Hub
+    /// id owner/name[@revision][:sub/folder] (downloaded once into the Hugging Face cache,
+    /// before any other work) (Stable Diffusion 1.5 + Wonder3D++'s ControlNet + IP-Adapter;
+    /// docs/weights.md, "The enhancer"; docs/refinement.md).
+    #[arg(long, value_name = "DIR|HUB_ID")]
     enhancer: Option<PathBuf>,
     /// Refinement iterations: 2 by default with --enhancer (the authors' count), 0 without;
     /// 0 writes the coarse mesh, as without --enhancer.
@@ -224,8 +229,9 @@ pub struct RefineAfterArgs {
 
 impl RefineAfterArgs {
     /// The iterations to run, checked before any work: more than 0 needs `--enhancer`, whose
-    /// directory must hold every file of its layout.
-    pub fn check(&self) -> Result<usize> {
+    /// directory must hold every file of its layout (a Hub id is downloaded here, its bar
+    /// hidden when `quiet`, so that a missing repository is named before the work starts).
+    pub fn check(&self, quiet: bool) -> Result<usize> {
         let iterations =
             self.refine.unwrap_or(if self.enhancer.is_some() { RefineOptions::default().iterations } else { 0 });
         match &self.enhancer {
@@ -234,7 +240,7 @@ impl RefineAfterArgs {
                 format!("0 without --enhancer DIR (found {iterations}: refinement needs an enhancer)"),
             )),
             Some(dir) if iterations > 0 => {
-                check_enhancer_dir(dir)?;
+                check_enhancer_dir(dir, quiet)?;
                 Ok(iterations)
             }
             _ => Ok(iterations),
@@ -255,23 +261,35 @@ impl RefineAfterArgs {
         let Some(dir) = self.enhancer.as_ref().filter(|_| iterations > 0) else {
             return Ok(None);
         };
-        let enhancer = diffusion_enhancer(dir, input, None)?;
+        let enhancer = diffusion_enhancer(dir, input, None, quiet)?;
         let options =
             RefineOptions::default().with_iterations(iterations).with_size(self.refine_size).with_texture(texture);
         refine_with_bar(geometry, views, enhancer.as_ref(), &options, quiet).map(Some)
     }
 }
 
-/// Fails naming the first missing file of an enhancer directory.
+/// Fails naming the first missing file of an enhancer directory (of the snapshot of a Hub id,
+/// downloaded first).
 #[cfg(feature = "diffusion")]
-fn check_enhancer_dir(dir: &std::path::Path) -> Result<()> {
-    wonder3d::diffusion::pipelines::enhancer::check_enhancer_dir(dir)
+fn check_enhancer_dir(dir: &std::path::Path, quiet: bool) -> Result<()> {
+    let dir = enhancer_dir(dir, quiet)?;
+    wonder3d::diffusion::pipelines::enhancer::check_enhancer_dir(&dir)
 }
 
 /// The diffusion enhancer needs the model (this binary has none).
 #[cfg(not(feature = "diffusion"))]
-fn check_enhancer_dir(_: &std::path::Path) -> Result<()> {
+fn check_enhancer_dir(_: &std::path::Path, _: bool) -> Result<()> {
     Err(crate::generate::without_model())
+}
+
+/// The enhancer folder of `--enhancer`: the folder itself, or the Hub id's snapshot in the
+/// Hugging Face cache (downloaded first where it lacks files, with a bar unless `quiet`).
+#[cfg(feature = "diffusion")]
+fn enhancer_dir(dir: &std::path::Path, quiet: bool) -> Result<PathBuf> {
+    let bar = progress::download_bar(quiet);
+    let dir = crate::weights::resolve("--enhancer", dir, wonder3d::weights::Layout::Enhancer, &bar);
+    bar.finish_and_clear();
+    dir
 }
 
 /// The diffusion enhancer of `dir`, with the accelerations of `acceleration` (none without):
@@ -282,6 +300,7 @@ fn diffusion_enhancer(
     dir: &std::path::Path,
     input: Option<&wonder3d::Image>,
     acceleration: Option<&AccelerationArgs>,
+    quiet: bool,
 ) -> Result<Box<dyn Enhancer>> {
     let acceleration = match acceleration {
         Some(args) => {
@@ -293,7 +312,8 @@ fn diffusion_enhancer(
         }
         None => wonder3d::Acceleration::default(),
     };
-    let enhancer = wonder3d::refine::DiffusionEnhancer::load(dir)?.with_acceleration(acceleration);
+    let dir = enhancer_dir(dir, quiet)?;
+    let enhancer = wonder3d::refine::DiffusionEnhancer::load(&dir)?.with_acceleration(acceleration);
     Ok(Box::new(match input {
         Some(image) => enhancer.with_input_image(image.clone()),
         None => enhancer,
@@ -306,6 +326,7 @@ fn diffusion_enhancer(
     _: &std::path::Path,
     _: Option<&wonder3d::Image>,
     _: Option<&AccelerationArgs>,
+    _: bool,
 ) -> Result<Box<dyn Enhancer>> {
     Err(crate::generate::without_model())
 }

@@ -65,7 +65,7 @@ pub fn run(args: &RunArgs) -> Result<()> {
     }
     let texture = TextureOptions::default().with_size(args.texture_size);
     texture.validate()?;
-    let iterations = args.refinement.check()?;
+    let iterations = args.refinement.check(args.quiet)?;
     args.model.sampling.check()?;
     // Read and prepare the image before loading the weights: a refused photo fails fast.
     let prepared = wonder3d::prepare_image(&args.image, &args.model.sampling.prepare_options()?)?;
@@ -79,7 +79,12 @@ pub fn run(args: &RunArgs) -> Result<()> {
         .with_preset(args.preset.into())
         .with_generated_view_starts(args.starts)
         .with_texture_size(args.texture_size)
-        .with_model(generate::load(&args.model.weights, &args.model.sampling, &wonder3d::SampleOptions::default())?);
+        .with_model(generate::load(
+            &args.model.weights,
+            &args.model.sampling,
+            &wonder3d::SampleOptions::default(),
+            &bar,
+        )?);
     let output = pipeline.from_image(&rgba, &mut progress::follow(&bar))?;
     bar.finish_and_clear();
     if let (Some(dir), Some(input)) = (&args.views, &output.input) {

@@ -44,9 +44,10 @@ pub struct TrainArgs {
     /// Training set folder (`wonder3d dataset`), at the model's image size.
     #[arg(long)]
     pub data: PathBuf,
-    /// Model directory to start from (unet/, vae/, image_encoder/, scheduler/); the VAE and
-    /// CLIP encoder stay frozen.
-    #[arg(long)]
+    /// Model directory to start from (unet/, vae/, image_encoder/, scheduler/), or a Hugging
+    /// Face Hub id owner/name[@revision][:sub/folder] of one (downloaded once into the Hugging
+    /// Face cache; docs/weights.md); the VAE and CLIP encoder stay frozen.
+    #[arg(long, value_name = "DIR|HUB_ID")]
     pub init: PathBuf,
     /// Output folder: `checkpoint/` (a model directory plus the optimizer state) and
     /// `train_log.jsonl`.
@@ -149,7 +150,13 @@ pub fn run(args: &TrainArgs) -> Result<()> {
     if opened.kind != wonder3d::ComputeDevice::Cpu {
         eprintln!("device: {}", opened.description);
     }
-    let mut pipeline = MultiViewPipeline::from_dir(&args.init, &opened.device)?;
+    let init = {
+        let bar = crate::progress::download_bar(args.quiet);
+        let dir = crate::weights::resolve("--init", &args.init, wonder3d::weights::Layout::MultiView, &bar)?;
+        bar.finish_and_clear();
+        dir
+    };
+    let mut pipeline = MultiViewPipeline::from_dir(&init, &opened.device)?;
     if stage != Stage::CrossDomain && pipeline.unet().config().cd_attention_mid {
         return Err(Error::invalid(
             "--stage",

@@ -1,6 +1,6 @@
 //! The CLI's commands, one test binary for all (one link instead of nine): `info`, `render` /
 //! `eval` / `texture`, `prepare`, `reconstruct` and `demo`, hostile input to all of them,
-//! `generate` / `run` / `demo --from-image` with the tiny model, their training-free
+//! `generate` / `run` / `demo --from-image` with the tiny model (and by Hub id), their training-free
 //! accelerations, `batch`, `dataset` and `train`. Run one group with `cargo test --release -p wonder3d-cli --test commands <group>::`.
 
 mod common;
@@ -15,6 +15,12 @@ mod dataset;
 mod generate;
 #[path = "commands/hostile.rs"]
 mod hostile;
+#[path = "commands/hub.rs"]
+mod hub;
+/// The Hugging Face Hub on loopback of the facade's tests.
+#[cfg(feature = "diffusion")]
+#[path = "../../wonder3d/tests/facade/hub_server.rs"]
+mod hub_server;
 #[path = "commands/info.rs"]
 mod info;
 #[path = "commands/prepare.rs"]

@@ -69,6 +69,23 @@ impl Generator {
         Generator::load_on(dir, w3d_diffusion::default_device())
     }
 
+    /// Loads the model `spec` names: a local checkpoint directory, or a Hugging Face Hub id
+    /// `owner/name[@revision][:sub/folder]` downloaded into (or found in) the Hugging Face
+    /// cache first ([`weights::resolve`](crate::weights::resolve): `HF_ENDPOINT`, `HF_HOME`,
+    /// `HF_HUB_OFFLINE`; [`Stage::Download`] events in bytes), on the default CPU device.
+    ///
+    /// ```no_run
+    /// # fn main() -> wonder3d::Result<()> {
+    /// let generator = wonder3d::Generator::from_pretrained("flamehaze1115/Wonder3D_plus", &mut |p| {
+    ///     eprintln!("{} {}/{}", p.stage.name(), p.done, p.total)
+    /// })?;
+    /// # Ok(())
+    /// # }
+    /// ```
+    pub fn from_pretrained(spec: &str, progress: &mut dyn FnMut(Progress)) -> Result<Generator> {
+        Generator::load(crate::weights::resolve(spec, progress)?)
+    }
+
     /// Loads a checkpoint directory onto `device` (weights held in the checkpoint's own
     /// precision, [`WeightStorage::AsStored`](w3d_diffusion::WeightStorage)): a Burn device, e.g. the GPU of
     /// [`ComputeDevice::Wgpu`](crate::ComputeDevice)`.open()?.device` (feature `wgpu`).

@@ -34,7 +34,8 @@
 //! # #[cfg(feature = "diffusion")] {
 //! use wonder3d::{Generator, Image, Pipeline};
 //!
-//! let model = Generator::load("ckpts/wonder3d_plus")?;
+//! let model = Generator::load("ckpts/wonder3d_plus")?; // or, by Hub id (downloaded once, cached):
+//! // let model = Generator::from_pretrained("flamehaze1115/Wonder3D_plus", &mut |_| {})?;
 //! let pipeline = Pipeline::new().with_model(model);
 //! let output = pipeline.from_image(&Image::read("cup.jpg")?, &mut |_| {})?; // a photo or RGBA
 //! output.save("cup.glb")?;
@@ -43,11 +44,14 @@
 //! ```
 
 // Layers, bottom-up: each group imports only from itself and the groups above it.
-// Building blocks: input images, output-path checks, progress events, contact sheets.
+// Building blocks: input images, output-path checks, progress events, contact sheets,
+// weights by Hugging Face Hub id.
 mod input;
 pub mod outputs;
 mod progress;
 pub mod sheet;
+#[cfg(feature = "diffusion")]
+pub mod weights;
 
 // The multi-view diffusion model.
 #[cfg(feature = "diffusion")]

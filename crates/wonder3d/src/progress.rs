@@ -10,6 +10,9 @@ use w3d_texture::BakeStage;
 #[serde(rename_all = "snake_case")]
 #[non_exhaustive]
 pub enum Stage {
+    /// Downloading model weights from the Hugging Face Hub (`wonder3d::weights`): `done` and
+    /// `total` in bytes over all the files still to fetch.
+    Download,
     /// Rendering oracle views of a known mesh (the demo, benchmarks).
     Render,
     /// Preparing the input image and computing the model's conditions (CLIP, VAE).
@@ -56,6 +59,7 @@ impl Stage {
     /// A short lower-case name for progress bars and logs (`denoise`, `coarse`, `atlas` …).
     pub fn name(self) -> &'static str {
         match self {
+            Stage::Download => "download",
             Stage::Render => "render",
             Stage::Evaluate => "evaluate",
             Stage::Condition => "condition",

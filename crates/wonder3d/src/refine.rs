@@ -140,6 +140,15 @@ impl DiffusionEnhancer {
         Self::load_on(dir, w3d_diffusion::default_device())
     }
 
+    /// Loads the enhancer `spec` names: a local enhancer directory, or a Hugging Face Hub id
+    /// `owner/name[@revision][:sub/folder]` of a repository laid out the same way, downloaded
+    /// into (or found in) the Hugging Face cache first
+    /// ([`weights::resolve_layout`](crate::weights::resolve_layout) with
+    /// [`Layout::Enhancer`](crate::weights::Layout::Enhancer); `Stage::Download` events in bytes).
+    pub fn from_pretrained(spec: &str, progress: &mut dyn FnMut(crate::progress::Progress)) -> Result<Self> {
+        Self::load(crate::weights::resolve_layout(spec, crate::weights::Layout::Enhancer, progress)?)
+    }
+
     /// Loads an enhancer directory onto `device`, weights in their stored precision.
     pub fn load_on(dir: impl AsRef<std::path::Path>, device: w3d_diffusion::Device) -> Result<Self> {
         let pipeline = w3d_diffusion::pipelines::enhancer::EnhancerPipeline::from_dir_with(

@@ -534,26 +534,30 @@ fn to_guidance_order(residuals: ControlResiduals, upstream_bugs: bool) -> Contro
     ControlResiduals { down, mid }
 }
 
+/// The files [`EnhancerPipeline::from_dir`] reads, as (folder, names): one of the names must
+/// be in the folder (the first is preferred; weights as safetensors only). `wonder3d`'s Hub
+/// download fetches exactly these.
+pub const ENHANCER_FILES: [(&str, &[&str]); 14] = [
+    ("unet", &["config.json"]),
+    ("unet", &["diffusion_pytorch_model.safetensors", "diffusion_pytorch_model.fp16.safetensors"]),
+    ("controlnet", &["config.json"]),
+    ("controlnet", &["diffusion_pytorch_model.safetensors", "diffusion_pytorch_model.fp16.safetensors"]),
+    ("vae", &["config.json"]),
+    ("vae", &["diffusion_pytorch_model.safetensors", "diffusion_pytorch_model.fp16.safetensors"]),
+    ("text_encoder", &["config.json"]),
+    ("text_encoder", &["model.safetensors", "model.fp16.safetensors"]),
+    ("image_encoder", &["config.json"]),
+    ("image_encoder", &["model.safetensors", "model.fp16.safetensors"]),
+    ("ip_adapter", &["ip-adapter_sd15.safetensors"]),
+    ("tokenizer", &["vocab.json"]),
+    ("tokenizer", &["merges.txt"]),
+    ("scheduler", &["scheduler_config.json"]),
+];
+
 /// Fails naming the first file of an enhancer directory that is missing (and where the
 /// directory's layout is documented), before any weight is read.
 pub fn check_enhancer_dir(dir: &Path) -> Result<(), Error> {
-    const FILES: [(&str, &[&str]); 14] = [
-        ("unet", &["config.json"]),
-        ("unet", &["diffusion_pytorch_model.safetensors", "diffusion_pytorch_model.fp16.safetensors"]),
-        ("controlnet", &["config.json"]),
-        ("controlnet", &["diffusion_pytorch_model.safetensors", "diffusion_pytorch_model.fp16.safetensors"]),
-        ("vae", &["config.json"]),
-        ("vae", &["diffusion_pytorch_model.safetensors", "diffusion_pytorch_model.fp16.safetensors"]),
-        ("text_encoder", &["config.json"]),
-        ("text_encoder", &["model.safetensors", "model.fp16.safetensors"]),
-        ("image_encoder", &["config.json"]),
-        ("image_encoder", &["model.safetensors", "model.fp16.safetensors"]),
-        ("ip_adapter", &["ip-adapter_sd15.safetensors"]),
-        ("tokenizer", &["vocab.json"]),
-        ("tokenizer", &["merges.txt"]),
-        ("scheduler", &["scheduler_config.json"]),
-    ];
-    for (folder, names) in FILES {
+    for (folder, names) in ENHANCER_FILES {
         if !names.iter().any(|name| dir.join(folder).join(name).is_file()) {
             return Err(Error::invalid(
                 "enhancer weights",
