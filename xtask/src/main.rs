@@ -9,6 +9,9 @@
 //! - `cargo xtask bench recon [-- --meshes a,b --cases ortho,persp,presets,concave,stability,robustness]`:
 //!   the reconstruction accuracy harness (oracle views of `../shared/data/meshes`), writing
 //!   `target/bench/recon.json` and, on a full run, `docs/accuracy.md`.
+//! - `cargo xtask bench python [-- --python PATH --runs N --size S]`: the Python package's
+//!   overhead: `wonder3d.reconstruct` against `Pipeline::from_views` on spot, alternately in
+//!   one run (`target/bench/python.json`; the wheel must be installed in that Python).
 //! - `cargo xtask chart`: `docs/speed_accuracy.svg` from `target/bench/recon.json`.
 //! - `cargo xtask training-chart`: `docs/training_time.svg` (the small model's recipe hours
 //!   against its normal error) from the measured points in `docs/training_time.json`.
@@ -98,6 +101,7 @@ mod faces_chart;
 mod gpu;
 mod hostile;
 mod layers;
+mod python_overhead;
 mod recon;
 mod recon_spread;
 mod refine_table;
@@ -538,6 +542,9 @@ fn bench(suite: &str, criterion_args: &[String]) -> Result<(), String> {
     if suite == "gpu" {
         return gpu::bench(criterion_args);
     }
+    if suite == "python" {
+        return python_overhead::run(criterion_args);
+    }
     let start = std::time::SystemTime::now();
     let mut cmd = Command::new("cargo");
     // `--workspace` resolves features as the test command does, so the bench reuses its builds.
@@ -619,6 +626,7 @@ fn build_parity() -> Result<(), String> {
     for (what, args) in [
         ("the README's demo command", &["-p", "wonder3d-cli", "--no-default-features", "-e", "normal,build"][..]),
         ("`cargo xtask`", &["-p", "xtask", "-e", "normal,build"][..]),
+        ("the Python wheel (maturin)", &["-p", "wonder3d-py", "-e", "normal,build"][..]),
     ] {
         let units = resolved_units(args)?;
         let before = missing;
@@ -637,13 +645,15 @@ fn build_parity() -> Result<(), String> {
     } else {
         Err(format!(
             "{missing} dependency builds differ from the test build: add the features above to the \
-             build-parity list in crates/wonder3d-cli/Cargo.toml or xtask/Cargo.toml"
+             build-parity list in crates/wonder3d-cli/Cargo.toml, xtask/Cargo.toml or \
+             crates/wonder3d-py/Cargo.toml"
         ))
     }
 }
 
 /// The workspace members that are not published (their manifests say `publish = false`).
-const UNPUBLISHED: &[&str] = &["wonder3d-examples", "wonder3d-tests", "xtask"];
+/// The Python package's crate is published to PyPI as a wheel, not to crates.io.
+const UNPUBLISHED: &[&str] = &["wonder3d-examples", "wonder3d-py", "wonder3d-tests", "xtask"];
 
 /// `cargo package` for every publishable crate, in dependency order: cargo resolves the
 /// crates' dependencies on each other through a local registry of the archives it just

@@ -139,7 +139,7 @@ pub struct Pipeline {
     generated_starts: usize,
     texture: Option<TextureOptions>,
     #[cfg(feature = "diffusion")]
-    model: Option<Generator>,
+    model: Option<std::sync::Arc<Generator>>,
 }
 
 impl Default for Pipeline {
@@ -305,15 +305,17 @@ impl Pipeline {
 
 #[cfg(feature = "diffusion")]
 impl Pipeline {
-    /// Uses `model` for [`Pipeline::from_image`].
-    pub fn with_model(mut self, model: Generator) -> Self {
-        self.model = Some(model);
+    /// Uses `model` for [`Pipeline::from_image`]: a [`Generator`], or an
+    /// `Arc<Generator>` that several pipelines (or other owners, such as the Python
+    /// package's `Generator` object) share without loading the weights twice.
+    pub fn with_model(mut self, model: impl Into<std::sync::Arc<Generator>>) -> Self {
+        self.model = Some(model.into());
         self
     }
 
     /// The loaded model, if any.
     pub fn model(&self) -> Option<&Generator> {
-        self.model.as_ref()
+        self.model.as_deref()
     }
 
     /// One image to a textured mesh: the model generates 6 normal + 6 colour views of

@@ -430,7 +430,9 @@ impl Accumulator {
         let positions: Vec<[f32; 3]> = reader
             .read_positions()
             .ok_or_else(|| Error::format(path, format!("{field}.attributes"), "a POSITION accessor"))?
-            .map(|p| world.transform_point3(Vec3::from(p)).to_array())
+            // Untransformed nodes keep their positions bit for bit: `x·1 + y·0 + z·0 + 0` turns
+            // -0.0 into +0.0, and a mesh written and read back should be the same mesh.
+            .map(|p| if world == Mat4::IDENTITY { p } else { world.transform_point3(Vec3::from(p)).to_array() })
             .collect();
         let n = positions.len() as u32;
         let base = self.positions.len() as u32;
