@@ -15,8 +15,6 @@ use crate::mesh::PyMesh;
 use crate::stages::input_image;
 use crate::views::PyViewSet;
 
-/// Generator(weights, device="cpu", progress=None)
-///
 /// The Wonder3D++ multi-view diffusion model, loaded once. weights: a checkpoint folder
 /// (docs/weights.md) or a Hugging Face id such as "flamehaze1115/Wonder3D_plus" (downloaded
 /// once into the Hugging Face cache; progress receives "download" events in bytes).
@@ -73,8 +71,6 @@ impl PyGenerator {
         Ok(PyGenerator { inner: Arc::new(generator), weights: spec })
     }
 
-    /// generate(image, steps=None, guidance=None, seed=None, draws=None, progress=None) -> Generated
-    ///
     /// The 6 views of one image: a path, a PIL image or an (H, W, 3|4) array; an RGBA image
     /// whose alpha masks the object, or a photo whose background is removed first. steps,
     /// guidance, seed and draws override the sampling defaults for this call. progress
@@ -156,8 +152,6 @@ impl PyGenerated {
         image_to_array(py, &self.inner.input, false)
     }
 
-    /// save(path)
-    ///
     /// Writes the view set, input.png and views.png (a contact sheet) into a new folder, as
     /// `wonder3d generate --out` does, all at once.
     fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
@@ -169,8 +163,6 @@ impl PyGenerated {
     }
 }
 
-/// Pipeline(generator=None, preset="default", starts=None, texture_size=1024, texture=True)
-///
 /// The whole job: an image (with a Generator) or a ViewSet → closed mesh → UV atlas and
 /// baked texture. starts: fits tried on views passed to from_views (run() uses the
 /// generated-view default, 4).
@@ -210,8 +202,6 @@ impl PyPipeline {
         Ok(PyPipeline { inner: pipeline })
     }
 
-    /// run(image, progress=None) -> Output
-    ///
     /// One image (path, PIL image or array) → generated views → textured mesh. Needs a
     /// generator.
     #[pyo3(signature = (image, progress=None))]
@@ -225,8 +215,6 @@ impl PyPipeline {
             .map(|inner| PyOutput { inner })
     }
 
-    /// from_views(views, progress=None) -> Output
-    ///
     /// A view set → closed mesh → textured mesh.
     #[pyo3(signature = (views, progress=None))]
     #[allow(clippy::wrong_self_convention, reason = "the facade's Pipeline::from_views, by name")]
@@ -280,8 +268,6 @@ impl PyOutput {
         json_to_py(py, &self.inner.report_json().py_err()?)
     }
 
-    /// save(path)
-    ///
     /// Writes the mesh (.glb, .obj or .ply), all at once.
     fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
         py.detach(|| self.inner.save(&path)).py_err()

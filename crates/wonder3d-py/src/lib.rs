@@ -1,7 +1,7 @@
 //! The native part of the `wonder3d` Python package: a thin PyO3 face over the `wonder3d`
 //! facade. Plain data in and out (numpy arrays, dicts); long calls release the GIL, report
-//! progress to a callback and stop on Ctrl-C ([`job`]); Rust errors become the exception
-//! classes of `python/wonder3d/errors.py` ([`errors`]). The Python package
+//! progress to a callback and stop on Ctrl-C (module `job`); Rust errors become the exception
+//! classes of `python/wonder3d/errors.py` (module `errors`). The Python package
 //! (`python/wonder3d/__init__.py`) re-exports everything here with its type stubs;
 //! `docs/python.md` is the user guide. Built by maturin (`pyproject.toml`):
 //!

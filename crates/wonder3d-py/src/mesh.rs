@@ -11,6 +11,12 @@ use crate::arrays::{float_rows, image, image_to_array, rows_to_array, triangles}
 use crate::errors::{IntoPy, invalid};
 
 /// A triangle mesh. Immutable: the array properties return copies.
+///
+/// Mesh(vertices, faces, *, normals=None, uvs=None, colours=None, texture=None):
+/// vertices: (N, 3) float array (float64 is rounded to float32); faces: (M, 3) integer
+/// array of vertex indices; normals: (N, 3) float; uvs: (N, 2) float, origin at the
+/// bottom left; colours: (N, 3) sRGB floats in [0, 1]; texture: (H, W, 3) sRGB floats in
+/// [0, 1] (needs uvs). Raises InvalidInputError naming the array at fault.
 #[pyclass(name = "Mesh", module = "wonder3d", frozen)]
 #[derive(Debug, Clone)]
 pub struct PyMesh {
@@ -54,12 +60,7 @@ fn from_arrays(
 
 #[pymethods]
 impl PyMesh {
-    /// Mesh(vertices, faces, *, normals=None, uvs=None, colours=None, texture=None)
-    ///
-    /// vertices: (N, 3) float array (float64 is rounded to float32); faces: (M, 3) integer
-    /// array of vertex indices; normals: (N, 3) float; uvs: (N, 2) float, origin at the
-    /// bottom left; colours: (N, 3) sRGB floats in [0, 1]; texture: (H, W, 3) sRGB floats in
-    /// [0, 1] (needs uvs). Raises InvalidInputError naming the array at fault.
+    /// A mesh from arrays, each checked (see the class).
     #[new]
     #[pyo3(signature = (vertices, faces, *, normals=None, uvs=None, colours=None, texture=None))]
     fn py_new(
@@ -73,8 +74,6 @@ impl PyMesh {
         Ok(PyMesh::new(from_arrays(vertices, faces, normals, uvs, colours, texture)?))
     }
 
-    /// Mesh.load(path) -> Mesh
-    ///
     /// Reads an .obj, .ply, .glb or .gltf file (the format from the extension). Raises
     /// FileError when it cannot be read, FormatError when its contents are wrong.
     #[staticmethod]
@@ -82,8 +81,6 @@ impl PyMesh {
         py.detach(|| wonder3d::load_mesh(&path)).py_err().map(PyMesh::new)
     }
 
-    /// save(path)
-    ///
     /// Writes an .obj (+ .mtl and .png when textured), .ply or .glb file, all at once
     /// (a failure leaves no partial file).
     fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
@@ -157,8 +154,6 @@ impl PyMesh {
         (lo.to_array(), hi.to_array())
     }
 
-    /// to_trimesh() -> trimesh.Trimesh
-    ///
     /// The same vertices and faces (process=False: nothing merged or reordered), with the
     /// normals, the vertex colours or the texture (a PIL image, when Pillow is installed).
     fn to_trimesh<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
@@ -187,8 +182,6 @@ impl PyMesh {
         trimesh.getattr("Trimesh")?.call((), Some(&kwargs))
     }
 
-    /// Mesh.from_trimesh(mesh) -> Mesh
-    ///
     /// The vertices and faces of a trimesh.Trimesh (float64 positions rounded to float32).
     #[staticmethod]
     fn from_trimesh(mesh: &Bound<'_, PyAny>) -> PyResult<Self> {

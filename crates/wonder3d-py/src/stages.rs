@@ -18,8 +18,6 @@ fn preset(name: &str) -> PyResult<Preset> {
     name.parse::<Preset>().py_err()
 }
 
-/// reconstruct(views, preset="default", starts=1, progress=None) -> Mesh
-///
 /// The closed mesh of a view set (`wonder3d reconstruct`): initialisation from the normal
 /// maps, then the coarse optimisation with continuous remeshing, untangling and polishing.
 /// preset: "fast", "default" or "quality"; starts: fits tried, the best kept (views from
@@ -40,8 +38,6 @@ pub fn reconstruct(
     Ok(PyMesh::new(output.mesh))
 }
 
-/// texture(mesh, views, size=1024, progress=None) -> Mesh
-///
 /// A UV atlas and a size × size texture baked from the views' colours (`wonder3d texture`):
 /// the returned mesh has vertices split along chart seams, uvs, normals and the texture.
 /// The mesh must be in the views' frame (as `reconstruct` returns it).
@@ -69,8 +65,6 @@ pub fn texture(
     Ok(PyMesh::new(textured.mesh))
 }
 
-/// evaluate(pred, gt, samples=None, seed=0, normalize_pred=False) -> dict
-///
 /// Geometry metrics of a prediction against a ground truth, the keys and values of
 /// `wonder3d eval --json`: chamfer (and both directions), fscore/precision/recall at 0.01
 /// and 0.02, volume IoU at 64³ and 128³, normal consistency, samples, seed. The ground
@@ -180,8 +174,6 @@ impl PyPrepared {
     }
 }
 
-/// prepare_image(image, min_confidence=None, crop=True) -> PreparedImage
-///
 /// A photo (path, PIL image or array) made ready for the model, as `wonder3d prepare` does:
 /// its own alpha when it has a meaningful one, else automatic background removal (refused
 /// with the reasons below min_confidence: InvalidInputError), then cropped and centred.
@@ -230,8 +222,6 @@ impl PyRefined {
     }
 }
 
-/// refine(geometry, views, enhancer=None, iterations=2, size=512, texture_size=None, progress=None) -> Refined
-///
 /// Wonder3D++'s refinement (`wonder3d refine`): render the textured mesh, enhance the
 /// renders, refit the mesh to them and project the enhanced colours into the texture,
 /// `iterations` times. enhancer: None or "identity", a Mesh (the oracle: renders of a known

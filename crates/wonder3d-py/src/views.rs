@@ -62,8 +62,6 @@ fn per_view<'py>(value: &Bound<'py, PyAny>, name: &str, views: usize) -> PyResul
 
 #[pymethods]
 impl PyViewSet {
-    /// ViewSet.load(path) -> ViewSet
-    ///
     /// Reads a view-set folder as `wonder3d render` or `wonder3d generate` writes it
     /// (cameras.json, normal_<view>.png|exr, mask_<view>.png, colour_<view>.png).
     #[staticmethod]
@@ -71,8 +69,6 @@ impl PyViewSet {
         py.detach(|| ViewSet::load(&path)).py_err().map(PyViewSet::new)
     }
 
-    /// ViewSet.from_arrays(normals, masks, colours=None, rig="wonder3d-ortho") -> ViewSet
-    ///
     /// normals: (V, H, W, 3) float array or V arrays of (H, W, 3), unit normals in the
     /// canonical frame (zero on the background); masks: (V, H, W) or V arrays of (H, W), in
     /// [0, 1]; colours: (V, H, W, 3) sRGB in [0, 1], or None; rig: "wonder3d-ortho",
@@ -103,8 +99,6 @@ impl PyViewSet {
         ViewSet::new(rig, views).py_err().map(PyViewSet::new)
     }
 
-    /// save(path)
-    ///
     /// Writes the folder layout of `wonder3d render`, all at once: a failure leaves the
     /// folder as it was. The folder must be new or empty, or a view set itself.
     fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
@@ -169,8 +163,6 @@ impl PyViewSet {
     }
 }
 
-/// render_views(mesh, rig="wonder3d-ortho", size=256, normalize=True) -> ViewSet
-///
 /// Oracle views of a known mesh, as `wonder3d render` makes them: a closed mesh wound
 /// inward is flipped outward, the mesh is normalised into the unit cube (unless
 /// normalize=False), and the rig's cameras render normals, masks and depth (and colours
