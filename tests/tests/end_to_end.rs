@@ -5,3 +5,5 @@
 mod assets;
 #[path = "end_to_end/recon_oracle.rs"]
 mod recon_oracle;
+#[path = "end_to_end/view_agreement.rs"]
+mod view_agreement;

@@ -107,7 +107,16 @@ pub struct CoarseOptions {
     /// limit, the first remesh collapses every shorter edge at once, and a thin part one or
     /// two edges across (the plane's wings) is lost before the fit can hold it.
     pub start_at_mesh_edge_lengths: bool,
+    /// Outlier views: from a quarter of the steps on, every [`VIEW_REWEIGHT_EVERY`] steps,
+    /// a view whose loss is above this many times the median view loss has its loss weighted
+    /// by `(k · median / loss)²` (1 otherwise). Generated views disagree, and a view the
+    /// others contradict (another object, a face drawn on the back) would otherwise pull the
+    /// surface towards a shape no closed mesh explains. `None` weighs every view 1.
+    pub outlier_view_loss: Option<f32>,
 }
+
+/// Steps between two estimates of the view weights ([`CoarseOptions::outlier_view_loss`]).
+pub const VIEW_REWEIGHT_EVERY: usize = 10;
 
 impl Default for CoarseOptions {
     fn default() -> Self {
@@ -127,6 +136,7 @@ impl Default for CoarseOptions {
             curvature_tolerance: None,
             curvature_from_views: false,
             start_at_mesh_edge_lengths: false,
+            outlier_view_loss: None,
         }
     }
 }
@@ -150,6 +160,7 @@ impl CoarseOptions {
         with_curvature_tolerance(curvature_tolerance: Option<f32>);
         with_curvature_from_views(curvature_from_views: bool);
         with_start_at_mesh_edge_lengths(start_at_mesh_edge_lengths: bool);
+        with_outlier_view_loss(outlier_view_loss: Option<f32>);
     }
 }
 
@@ -162,6 +173,9 @@ pub struct CoarseReport {
     pub losses: Vec<f32>,
     /// Triangle count after each remesh.
     pub triangle_counts: Vec<usize>,
+    /// The weight of each view's loss at the end, in rig order (all 1 without
+    /// [`CoarseOptions::outlier_view_loss`]).
+    pub view_weights: Vec<f32>,
     /// Wall-clock seconds of the whole optimisation.
     pub seconds: f64,
 }
@@ -241,12 +255,19 @@ pub fn reconstruct_coarse(
         let scale = options.min_edge_pixels / size as f32;
         opt.set_min_edge_length_field(move |p| scale * finest_view_span(&cameras, glam::Vec3::from(p)));
     }
-    let fit = ViewFit::new(views, options)?;
-    let mut report = CoarseReport { losses: Vec::new(), triangle_counts: Vec::new(), seconds: 0.0 };
+    let mut fit = ViewFit::new(views, options)?;
+    let mut report =
+        CoarseReport { losses: Vec::new(), triangle_counts: Vec::new(), view_weights: Vec::new(), seconds: 0.0 };
     let mut lr = options.lr;
-    for _ in 0..options.steps {
-        let FitEvaluation { loss, gradient: grad_positions, curvature } =
+    for step in 0..options.steps {
+        let FitEvaluation { loss, gradient: grad_positions, curvature, view_losses } =
             fit.loss_gradient_and_curvature(opt.positions(), opt.triangles())?;
+        if let Some(k) = options.outlier_view_loss
+            && step >= options.steps / 4
+            && (step - options.steps / 4).is_multiple_of(VIEW_REWEIGHT_EVERY)
+        {
+            fit.view_weights = outlier_weights(&view_losses, k);
+        }
         report.losses.push(loss);
         if !loss.is_finite() {
             return Err(Error::invalid("views", format!("finite normal and mask values (the loss became {loss})")));
@@ -263,8 +284,18 @@ pub fn reconstruct_coarse(
         opt.set_options(o)?;
         progress(report.losses.len(), options.steps, loss);
     }
+    report.view_weights = fit.view_weights.clone();
     report.seconds = start.elapsed().as_secs_f64();
     Ok((opt.to_mesh()?, report))
+}
+
+/// The view weights of [`CoarseOptions::outlier_view_loss`] `k` for the unweighted per-view
+/// losses `losses`: 1, or `(k · median / loss)²` for a loss above `k` times the median.
+fn outlier_weights(losses: &[f32], k: f32) -> Vec<f32> {
+    let mut sorted = losses.to_vec();
+    sorted.sort_by(f32::total_cmp);
+    let median = sorted[sorted.len() / 2];
+    losses.iter().map(|&l| if l > k * median && l > 0.0 { ((k * median) / l).powi(2) } else { 1.0 }).collect()
 }
 
 /// The coarse stage's loss (normal and mask terms with `options`' weights, summed over the
@@ -287,6 +318,8 @@ pub(crate) struct ViewFit<'a> {
     /// Per view, with [`CoarseOptions::curvature_from_views`] and a curvature tolerance: the
     /// target normals' angular change per pixel.
     view_curvature: Option<Vec<NormalChange>>,
+    /// Per view: the weight of its loss ([`CoarseOptions::outlier_view_loss`]; 1 by default).
+    pub(crate) view_weights: Vec<f32>,
 }
 
 impl<'a> ViewFit<'a> {
@@ -296,7 +329,7 @@ impl<'a> ViewFit<'a> {
         if views.height() != size {
             return Err(Error::invalid("views", format!("square images, got {}×{}", size, views.height())));
         }
-        let targets = views
+        let targets: Vec<(Vec<f32>, Vec<f32>, Vec<f32>)> = views
             .iter()
             .map(|(rv, v)| {
                 let inside = eroded_mask(v.mask.data(), size as usize, options.normal_mask_erosion as usize);
@@ -324,6 +357,7 @@ impl<'a> ViewFit<'a> {
             size,
             normal_weight: options.normal_weight,
             mask_weight: options.mask_weight,
+            view_weights: vec![1.0; targets.len()],
             targets,
             view_curvature,
         })
@@ -358,9 +392,11 @@ impl<'a> ViewFit<'a> {
         let per_view: Vec<(f32, Vec<[f32; 3]>, Vec<f32>)> = rasters
             .par_iter()
             .zip(&self.targets)
-            .map(|(raster, (normal, mask, weight))| {
+            .zip(&self.view_weights)
+            .map(|((raster, (normal, mask, weight)), &view_weight)| {
                 let image = interpolate(&attributes, 4, triangles, raster)?;
                 let aa = antialias(&image, 4, raster, positions, triangles, &topology)?;
+                // The view's loss unweighted (for the outlier weights); its gradient weighted.
                 let mut loss = 0.0f32;
                 let mut grad = vec![0.0f32; aa.image.len()];
                 for p in 0..mask.len() {
@@ -369,11 +405,11 @@ impl<'a> ViewFit<'a> {
                     for k in 0..3 {
                         let d = px[k] - normal[3 * p + k];
                         loss += wn * d * d;
-                        grad[4 * p + k] = 2.0 * wn * d;
+                        grad[4 * p + k] = 2.0 * view_weight * wn * d;
                     }
                     let d = px[3] - mask[p];
                     loss += self.mask_weight * d * d / pixels;
-                    grad[4 * p + 3] = 2.0 * self.mask_weight * d / pixels;
+                    grad[4 * p + 3] = 2.0 * view_weight * self.mask_weight * d / pixels;
                 }
                 let ga = antialias_backward(&aa, &image, 4, raster, positions, triangles, &grad)?;
                 let gi = interpolate_backward(&attributes, 4, triangles, raster, &ga.colour)?;
@@ -387,8 +423,10 @@ impl<'a> ViewFit<'a> {
         let mut grad_positions = vec![[0.0f32; 3]; positions.len()];
         let mut grad_normals = vec![[0.0f32; 3]; positions.len()];
         let mut loss = 0.0;
-        for (l, gp, ga) in per_view {
-            loss += l;
+        let mut view_losses = Vec::with_capacity(per_view.len());
+        for ((l, gp, ga), &view_weight) in per_view.into_iter().zip(&self.view_weights) {
+            loss += view_weight * l;
+            view_losses.push(l);
             for (v, g) in gp.iter().enumerate() {
                 for k in 0..3 {
                     grad_positions[v][k] += g[k];
@@ -437,7 +475,7 @@ impl<'a> ViewFit<'a> {
                 })
                 .collect()
         });
-        Ok(FitEvaluation { loss, gradient: grad_positions, curvature })
+        Ok(FitEvaluation { loss, gradient: grad_positions, curvature, view_losses })
     }
 }
 
@@ -451,6 +489,8 @@ pub(crate) struct FitEvaluation {
     /// the curvature the views show (1 / world units) in place of the mesh's, or as a floor
     /// under it near a silhouette, or nothing where no view shows the vertex.
     pub(crate) curvature: Option<Vec<CurvatureHint>>,
+    /// Each view's loss, unweighted, in rig order.
+    pub(crate) view_losses: Vec<f32>,
 }
 
 /// Pixels either side of a pixel whose target normals give the views' curvature

@@ -47,6 +47,7 @@
 //! # Ok::<(), w3d_core::Error>(())
 //! ```
 
+mod agreement;
 mod coarse;
 mod init;
 mod integrate;
@@ -56,8 +57,10 @@ mod polish;
 mod refine;
 mod untangle;
 
+pub use agreement::{ViewAgreement, disagreeing_view, view_agreement};
 pub use coarse::{
-    CoarseOptions, CoarseReport, VIEW_CURVATURE_STENCIL, reconstruct_coarse, silhouette_sphere, view_loss,
+    CoarseOptions, CoarseReport, VIEW_CURVATURE_STENCIL, VIEW_REWEIGHT_EVERY, reconstruct_coarse, silhouette_sphere,
+    view_loss,
 };
 pub use init::{InitChoice, InitOptions, InitReport, initial_mesh, visual_hull_mesh};
 pub use pipeline::{

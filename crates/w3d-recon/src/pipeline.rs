@@ -7,6 +7,7 @@ use std::time::Instant;
 
 use w3d_core::{Error, Mesh, Result, ViewSet, self_intersections};
 
+use crate::agreement::{ViewAgreement, view_agreement};
 use crate::coarse::{CoarseOptions, CoarseReport, reconstruct_coarse};
 use crate::init::{InitChoice, InitOptions, InitReport, start_meshes};
 use crate::polish::{PolishReport, polish};
@@ -234,6 +235,10 @@ pub struct ReconReport {
     pub starts_skipped: usize,
     /// Triangles of the returned mesh.
     pub triangles: usize,
+    /// How well each view agrees with the returned mesh, in rig order ([`view_agreement`]):
+    /// the view with the lowest score is the one the others outvoted
+    /// ([`disagreeing_view`](crate::disagreeing_view)).
+    pub views: Vec<ViewAgreement>,
     /// Total wall-clock seconds.
     pub seconds: f64,
 }
@@ -328,6 +333,7 @@ pub fn reconstruct(
         start_kept,
         starts_skipped,
         triangles: fit.mesh.triangle_count(),
+        views: view_agreement(views, &fit.mesh)?,
         seconds: start.elapsed().as_secs_f64(),
     };
     Ok((fit.mesh, report))
@@ -537,7 +543,7 @@ mod tests {
     use super::*;
 
     fn report(losses: Vec<f32>) -> CoarseReport {
-        CoarseReport { losses, triangle_counts: Vec::new(), seconds: 0.0 }
+        CoarseReport { losses, triangle_counts: Vec::new(), view_weights: Vec::new(), seconds: 0.0 }
     }
 
     /// `n` triangles with corners drawn uniformly in the unit cube (a deterministic LCG).

@@ -50,6 +50,22 @@ pub fn follow(bar: &ProgressBar) -> impl FnMut(Progress) + '_ {
     }
 }
 
+/// The line to print when one view disagrees with the others (its agreement score below
+/// 0.85 × the median of the others'; `wonder3d::recon::disagreeing_view`), else `None`:
+/// which view, how far, and that the mesh follows the others.
+pub fn disagreement_note(report: &wonder3d::recon::ReconReport) -> Option<String> {
+    wonder3d::recon::disagreeing_view(&report.views, DISAGREEMENT_RATIO).map(|v| {
+        format!(
+            "note: the {} view disagrees with the others (silhouette IoU {:.2}, normals {:.1}° off the mesh); \
+             the mesh follows the other views",
+            v.view, v.mask_iou, v.normal_error_deg
+        )
+    })
+}
+
+/// A view scoring below this fraction of the other views' median agreement is named.
+const DISAGREEMENT_RATIO: f32 = 0.85;
+
 /// ` (fit k of n kept)` when the reconstruction tried several fits (`--starts`), why it
 /// stopped after one when it skipped the others, else nothing.
 pub fn starts_note(report: &wonder3d::recon::ReconReport) -> String {

@@ -82,5 +82,8 @@ pub fn run(args: &ReconstructArgs) -> Result<()> {
         r.reconstruction.init.reason,
         args.out.display()
     );
+    if let Some(note) = crate::progress::disagreement_note(&r.reconstruction) {
+        eprintln!("{note}");
+    }
     Ok(())
 }

@@ -122,6 +122,9 @@ pub fn run(args: &RunArgs) -> Result<()> {
         r.seconds.reconstruct,
         crate::progress::starts_note(&r.reconstruction)
     );
+    if let Some(note) = crate::progress::disagreement_note(&r.reconstruction) {
+        eprintln!("{note}");
+    }
     Ok(())
 }
 
