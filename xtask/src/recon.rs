@@ -669,16 +669,45 @@ fn robustness_runs(data: &Path, size: u32, wanted: &dyn Fn(&str) -> bool) -> Res
         let name = file.split('.').next().unwrap_or(file);
         let truth = load_normalised(data, file)?;
         let clean = render_oracle_views(&truth, &rig, size).map_err(|e| e.to_string())?;
+        let seed = robust::NOISE_SEED + index as u64;
         for &case in robust::CASES {
+            // What was drawn at random, for recon.json (the per-view scales and shifts).
+            let mut detail = Value::Null;
             // (truth the views show, its scale, the views)
             let perturbed: Result<(Mesh, f32, ViewSet), String> = match case {
                 "noise σ=0" => Ok((truth.clone(), 1.0, clean.clone())),
                 "noise σ=0.05" | "noise σ=0.15" | "noise σ=0.3" => {
                     let sigma: f32 = case.trim_start_matches("noise σ=").parse().map_err(|e| format!("{e}"))?;
-                    with_normal_noise(clean.clone(), sigma, robust::NOISE_SEED + index as u64)
-                        .map(|v| (truth.clone(), 1.0, v))
+                    with_normal_noise(clean.clone(), sigma, seed).map(|v| (truth.clone(), 1.0, v))
                 }
                 "blur σ=2 px" => robust::with_blurred_normals(clean.clone(), 2.0).map(|v| (truth.clone(), 1.0, v)),
+                "normal rotation 5°" | "normal rotation 10°" => {
+                    let degrees = if case.contains("10°") { 10.0 } else { 5.0 };
+                    robust::with_rotated_normals(clean.clone(), degrees, seed).map(|v| (truth.clone(), 1.0, v))
+                }
+                "scale jitter ±3 %" => {
+                    robust::with_scale_jitter(clean.clone(), robust::SCALE_JITTER, seed).map(|(v, factors)| {
+                        detail = json!({ "view_scales": factors });
+                        (truth.clone(), 1.0, v)
+                    })
+                }
+                "shift ±2 px" => robust::with_shifts(clean.clone(), robust::SHIFT_PX, seed).map(|(v, shifts)| {
+                    detail = json!({ "view_shifts_px": shifts });
+                    (truth.clone(), 1.0, v)
+                }),
+                "silhouette dilated 3 px" | "silhouette eroded 3 px" => {
+                    let radius = if case.contains("dilated") { robust::SILHOUETTE_PX } else { -robust::SILHOUETTE_PX };
+                    robust::with_silhouette_changed(clean.clone(), robust::ONE_VIEW, radius)
+                        .map(|v| (truth.clone(), 1.0, v))
+                }
+                "one view from another shape" => {
+                    let other = robust::other_shape(&truth)?;
+                    let donor = render_oracle_views(&other, &rig, size).map_err(|e| e.to_string())?;
+                    robust::with_geometry_from(clean.clone(), &donor, robust::ONE_VIEW).map(|v| (truth.clone(), 1.0, v))
+                }
+                "mirrored back (two faces)" => {
+                    robust::with_mirrored_back(clean.clone()).map(|v| (truth.clone(), 1.0, v))
+                }
                 "wrong view" => {
                     let donor = load_normalised(data, robust::MESHES[(index + 1) % robust::MESHES.len()])?;
                     let donor_views = render_oracle_views(&donor, &rig, size).map_err(|e| e.to_string())?;
@@ -705,10 +734,13 @@ fn robustness_runs(data: &Path, size: u32, wanted: &dyn Fn(&str) -> bool) -> Res
                 other => Err(format!("unknown robustness case {other}")),
             };
             let label = format!("{}{case}", robust::PREFIX);
-            let run = match perturbed {
+            let mut run = match perturbed {
                 Ok((truth, scale, views)) => checked_score(name, &label, &truth, scale, &views),
                 Err(e) => failed_run(name, &label, "error", e),
             };
+            if !detail.is_null() {
+                run.value["perturbation"] = detail;
+            }
             runs.push(run);
         }
     }
