@@ -64,6 +64,7 @@ pub use interpolate::{InterpolateGrad, interpolate, interpolate_backward};
 pub use project::NEAR_DEPTH;
 pub use raster::{NO_TRIANGLE, Raster, rasterize, rasterize_backward, rasterize_views};
 pub use render::{
-    NormalMode, rasterize_rig, render_colours, render_depth, render_mask, render_normals, render_oracle_views,
+    MAX_VIEW_SIZE, NormalMode, rasterize_rig, render_colours, render_depth, render_mask, render_normals,
+    render_oracle_views,
 };
 pub use texture::{TextureGrad, WrapMode, texture, texture_backward};

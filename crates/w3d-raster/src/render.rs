@@ -113,6 +113,12 @@ pub fn render_colours(mesh: &Mesh, rig: &ViewRig, size: u32) -> Result<Vec<Image
     rasterize_rig(mesh, rig, size)?.par_iter().map(|r| colour_image(mesh, r)).collect()
 }
 
+/// The largest view side the front ends (`wonder3d render --size`, Python's `render_views`)
+/// accept for [`render_oracle_views`]: a 4096² view set of the 16-view rig takes about 13 GB
+/// while rendering (rasters plus normal, colour, mask and depth images, ~50 bytes a pixel a
+/// view); larger sizes used to abort on allocation.
+pub const MAX_VIEW_SIZE: u32 = 4096;
+
 /// The oracle views of a mesh for `rig` at `size × size`, as a [`ViewSet`] owning a copy of
 /// `rig`: smooth world-space normals, colours (as [`render_colours`]), anti-aliased masks and
 /// depth, ready for [`ViewSet::save`]. The mesh is used as given (normalise it to the unit cube first for

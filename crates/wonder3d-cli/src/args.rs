@@ -1,6 +1,7 @@
 //! Command-line value types shared by several subcommands: presets, rigs and camera types
 //! as closed lists, so a typo is refused with the accepted values before any work.
 
+use wonder3d::raster::MAX_VIEW_SIZE;
 use wonder3d::{Preset, ViewRig};
 
 /// `--preset`: a named speed/accuracy trade-off of the reconstruction (`docs/accuracy.md`).
@@ -100,11 +101,6 @@ pub fn orient_outward(mesh: &mut wonder3d::Mesh, path: &std::path::Path) {
         eprintln!("note: {} is a closed mesh wound inward (negative volume); using it flipped outward", path.display());
     }
 }
-
-/// Largest `--size` of `wonder3d render` and `wonder3d demo`: a 4096² view set of the
-/// 16-view rig takes about 13 GB while rendering (rasters plus normal, colour, mask and
-/// depth images, ~50 bytes a pixel a view); larger sizes used to abort on allocation.
-pub const MAX_VIEW_SIZE: u32 = 4096;
 
 /// Largest `--size` / `--texture-size` of a baked texture: the bake keeps several float
 /// images of the atlas (~2 GB at 8192²).

@@ -126,8 +126,9 @@ pub fn rows_to_array<'py, T: Element + Copy, const K: usize>(
     Ok(numpy::PyArray1::from_vec(py, flat).reshape([rows.len(), K])?.into_any())
 }
 
-/// A JSON document as Python objects (`json.loads`): reports and metrics keep the keys of
-/// the CLI's JSON.
-pub fn json_to_py<'py>(py: Python<'py>, json: &str) -> PyResult<Bound<'py, PyAny>> {
+/// A serialisable value as Python objects (through JSON and `json.loads`): reports and
+/// metrics keep the keys of the CLI's JSON. `what` names it in the (unexpected) error.
+pub fn to_py_objects<'py, T: serde::Serialize>(py: Python<'py>, value: &T, what: &str) -> PyResult<Bound<'py, PyAny>> {
+    let json = serde_json::to_string(value).map_err(|e| crate::errors::invalid(what, e.to_string()))?;
     py.import("json")?.call_method1("loads", (json,))
 }

@@ -8,7 +8,7 @@ use pyo3::prelude::*;
 use wonder3d::diffusion::compute::Products;
 use wonder3d::{ComputeDevice, Preset, TextureOptions};
 
-use crate::arrays::{image_to_array, json_to_py};
+use crate::arrays::{image_to_array, to_py_objects};
 use crate::errors::{IntoPy, invalid};
 use crate::job::{Reporter, run};
 use crate::mesh::PyMesh;
@@ -265,7 +265,7 @@ impl PyOutput {
     /// texture and generation details (the keys of report.json).
     #[getter]
     fn report<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        json_to_py(py, &self.inner.report_json().py_err()?)
+        to_py_objects(py, &self.inner.report, "report")
     }
 
     /// Writes the mesh (.glb, .obj or .ply), all at once.

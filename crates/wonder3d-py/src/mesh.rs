@@ -31,36 +31,10 @@ impl PyMesh {
     }
 }
 
-/// A mesh from arrays, each checked (shape, dtype, finite values, indices in range).
-fn from_arrays(
-    vertices: &Bound<'_, PyAny>,
-    faces: &Bound<'_, PyAny>,
-    normals: Option<&Bound<'_, PyAny>>,
-    uvs: Option<&Bound<'_, PyAny>>,
-    colours: Option<&Bound<'_, PyAny>>,
-    texture: Option<&Bound<'_, PyAny>>,
-) -> PyResult<Mesh> {
-    let positions = float_rows::<3>(vertices, "vertices")?;
-    let tris = triangles(faces, "faces", positions.len())?;
-    let mut mesh = Mesh::new(positions, tris).py_err()?;
-    if let Some(normals) = normals {
-        mesh = mesh.with_normals(float_rows::<3>(normals, "normals")?).py_err()?;
-    }
-    if let Some(uvs) = uvs {
-        mesh = mesh.with_uvs(float_rows::<2>(uvs, "uvs")?).py_err()?;
-    }
-    if let Some(colours) = colours {
-        mesh = mesh.with_colours(float_rows::<3>(colours, "colours")?).py_err()?;
-    }
-    if let Some(texture) = texture {
-        mesh = mesh.with_texture(image(texture, "texture", 3)?).py_err()?;
-    }
-    Ok(mesh)
-}
-
 #[pymethods]
 impl PyMesh {
-    /// A mesh from arrays, each checked (see the class).
+    /// A mesh from arrays, each checked (shape, dtype, finite values, indices in range; see
+    /// the class).
     #[new]
     #[pyo3(signature = (vertices, faces, *, normals=None, uvs=None, colours=None, texture=None))]
     fn py_new(
@@ -71,7 +45,22 @@ impl PyMesh {
         colours: Option<&Bound<'_, PyAny>>,
         texture: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<Self> {
-        Ok(PyMesh::new(from_arrays(vertices, faces, normals, uvs, colours, texture)?))
+        let positions = float_rows::<3>(vertices, "vertices")?;
+        let tris = triangles(faces, "faces", positions.len())?;
+        let mut mesh = Mesh::new(positions, tris).py_err()?;
+        if let Some(normals) = normals {
+            mesh = mesh.with_normals(float_rows::<3>(normals, "normals")?).py_err()?;
+        }
+        if let Some(uvs) = uvs {
+            mesh = mesh.with_uvs(float_rows::<2>(uvs, "uvs")?).py_err()?;
+        }
+        if let Some(colours) = colours {
+            mesh = mesh.with_colours(float_rows::<3>(colours, "colours")?).py_err()?;
+        }
+        if let Some(texture) = texture {
+            mesh = mesh.with_texture(image(texture, "texture", 3)?).py_err()?;
+        }
+        Ok(PyMesh::new(mesh))
     }
 
     /// Reads an .obj, .ply, .glb or .gltf file (the format from the extension). Raises
@@ -187,7 +176,7 @@ impl PyMesh {
     fn from_trimesh(mesh: &Bound<'_, PyAny>) -> PyResult<Self> {
         let vertices = mesh.getattr("vertices").map_err(|_| invalid("mesh", "a trimesh.Trimesh (no .vertices)"))?;
         let faces = mesh.getattr("faces").map_err(|_| invalid("mesh", "a trimesh.Trimesh (no .faces)"))?;
-        Ok(PyMesh::new(from_arrays(&vertices, &faces, None, None, None, None)?))
+        PyMesh::py_new(&vertices, &faces, None, None, None, None)
     }
 
     pub fn __repr__(&self) -> String {

@@ -7,7 +7,7 @@ use pyo3::prelude::*;
 use wonder3d::refine::{DiffusionEnhancer, Enhancer, IdentityEnhancer, OracleEnhancer, RefineOptions, RefineStep};
 use wonder3d::{Image, Pipeline, PrepareOptions, Preset, Progress, Stage, TextureOptions};
 
-use crate::arrays::{image_to_array, json_to_py};
+use crate::arrays::{image_to_array, to_py_objects};
 use crate::errors::{IntoPy, invalid};
 use crate::job::{ProgressEvent, Reporter, run};
 use crate::mesh::PyMesh;
@@ -84,11 +84,8 @@ pub fn evaluate<'py>(
         options = options.with_samples(samples);
     }
     let (mut pred, mut gt) = (pred.inner.clone(), gt.inner.clone());
-    for (mesh, role) in [(&pred, "pred"), (&gt, "gt")] {
-        if mesh.surface_area().partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
-            return Err(invalid(role, "a mesh with a surface (its triangles all have zero area)"));
-        }
-    }
+    wonder3d::check_surface(&pred, "pred").py_err()?;
+    wonder3d::check_surface(&gt, "gt").py_err()?;
     pred.orient_outward();
     gt.orient_outward();
     gt.normalize_unit_cube();
@@ -96,7 +93,7 @@ pub fn evaluate<'py>(
         pred.normalize_unit_cube();
     }
     let metrics = py.detach(|| wonder3d::eval::evaluate(&pred, &gt, &options)).py_err()?;
-    json_to_py(py, &serde_json::to_string(&metrics).map_err(|e| invalid("metrics", e.to_string()))?)
+    to_py_objects(py, &metrics, "metrics")
 }
 
 /// An image argument: a path (str or os.PathLike), a PIL image, or an (H, W, 3|4) array
@@ -218,7 +215,7 @@ impl PyRefined {
     /// The refinement report (per iteration: mesh fit, bake, texture refinement, seconds).
     #[getter]
     fn report<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        json_to_py(py, &serde_json::to_string(&self.inner.report).map_err(|e| invalid("report", e.to_string()))?)
+        to_py_objects(py, &self.inner.report, "report")
     }
 }
 

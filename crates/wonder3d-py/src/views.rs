@@ -5,15 +5,12 @@ use std::path::PathBuf;
 
 use pyo3::prelude::*;
 use pyo3::types::PyList;
+use wonder3d::raster::MAX_VIEW_SIZE;
 use wonder3d::{ViewImages, ViewRig, ViewSet};
 
 use crate::arrays::{image, image_to_array};
 use crate::errors::{IntoPy, invalid};
 use crate::mesh::PyMesh;
-
-/// Largest `size` of `render_views`, the CLI's `wonder3d render --size` limit: a 4096² view
-/// set of the 16-view rig takes about 13 GB while rendering.
-const MAX_VIEW_SIZE: u32 = 4096;
 
 /// The views of one object: a rig (named cameras) and, per view, a unit-normal image, a
 /// mask and optionally a colour image, all the same size. Immutable.

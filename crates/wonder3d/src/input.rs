@@ -25,11 +25,15 @@ pub fn prepare_image(path: impl AsRef<Path>, options: &PrepareOptions) -> Result
 pub fn load_mesh_with_surface(path: impl AsRef<Path>, role: &str) -> Result<Mesh> {
     let path = path.as_ref();
     let mesh = w3d_core::load_mesh(path)?;
-    if mesh.surface_area().partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
-        return Err(Error::invalid(
-            format!("{role} {}", path.display()),
-            "a mesh with a surface (its triangles all have zero area)",
-        ));
-    }
+    check_surface(&mesh, &format!("{role} {}", path.display()))?;
     Ok(mesh)
+}
+
+/// Fails, naming `what`, unless `mesh` has a surface (a positive, finite total area): the
+/// check of [`load_mesh_with_surface`] for a mesh already in memory.
+pub fn check_surface(mesh: &Mesh, what: &str) -> Result<()> {
+    if mesh.surface_area().partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
+        return Err(Error::invalid(what, "a mesh with a surface (its triangles all have zero area)"));
+    }
+    Ok(())
 }

@@ -68,7 +68,7 @@ pub mod refine;
 
 #[cfg(feature = "diffusion")]
 pub use generate::{Generated, Generator};
-pub use input::{load_mesh_with_surface, prepare_image};
+pub use input::{check_surface, load_mesh_with_surface, prepare_image};
 pub use pipeline::{GENERATED_VIEW_STARTS, GenerationReport, Output, Pipeline, Report, Seconds};
 pub use progress::{Progress, Stage, TextureStage};
 /// Meshes, cameras, view rigs, images, view sets and file IO (the `w3d-core` crate).

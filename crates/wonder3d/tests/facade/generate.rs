@@ -8,7 +8,7 @@ fn tiny_model() -> std::path::PathBuf {
 }
 
 /// An RGBA disc (its alpha masks the object, so no background removal runs).
-fn disc(side: u32) -> Image {
+pub(crate) fn disc(side: u32) -> Image {
     let mut image = Image::filled(side, side, 4, 0.0).unwrap();
     let c = side as f32 / 2.0;
     for y in 0..side {

@@ -8,8 +8,9 @@
 use std::path::{Path, PathBuf};
 
 use wonder3d::weights::{HubSettings, Layout, resolve_with};
-use wonder3d::{Generator, Image, SampleOptions, Stage};
+use wonder3d::{Generator, SampleOptions, Stage};
 
+use crate::generate::disc;
 use crate::hub_server::{HubServer, Repo};
 
 fn fixture(name: &str) -> PathBuf {
@@ -52,20 +53,6 @@ fn files_under(dir: &Path) -> Vec<String> {
     }
     out.sort();
     out
-}
-
-/// An RGBA disc (its alpha masks the object, so no background removal runs).
-fn disc(side: u32) -> Image {
-    let mut image = Image::filled(side, side, 4, 0.0).unwrap();
-    let c = side as f32 / 2.0;
-    for y in 0..side {
-        for x in 0..side {
-            if (x as f32 + 0.5 - c).hypot(y as f32 + 0.5 - c) < c * 0.7 {
-                image.pixel_mut(x, y).copy_from_slice(&[0.8, x as f32 / side as f32, 0.3, 1.0]);
-            }
-        }
-    }
-    image
 }
 
 /// The loader's files of the tiny model, as the snapshot must hold them.

@@ -22,6 +22,8 @@ use std::path::Path;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 
+use wonder3d::core::io::fnv1a64;
+
 /// A repository: its files at one commit.
 #[derive(Clone, Default)]
 pub struct Repo {
@@ -89,11 +91,6 @@ pub struct HubServer {
     port: u16,
 }
 
-/// A 64-bit FNV-1a hash of `bytes`.
-fn fnv(bytes: &[u8]) -> u64 {
-    bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, &b| (h ^ b as u64).wrapping_mul(0x0100_0000_01b3))
-}
-
 impl HubServer {
     /// A server on a free loopback port.
     pub fn start() -> HubServer {
@@ -120,7 +117,7 @@ impl HubServer {
     /// Serves `repo` as `id` (`owner/name`); its commit is derived from the id when empty.
     pub fn add(&self, id: &str, mut repo: Repo) -> String {
         if repo.commit.is_empty() {
-            repo.commit = format!("{:016x}{:016x}{:08x}", fnv(id.as_bytes()), fnv(b"commit"), 7);
+            repo.commit = format!("{}{}{:08x}", fnv1a64(id.as_bytes()), fnv1a64(b"commit"), 7);
         }
         let commit = repo.commit.clone();
         self.state.lock().unwrap().repos.insert(id.to_owned(), repo);
@@ -229,8 +226,8 @@ fn serve(mut stream: TcpStream, state: &Mutex<State>) -> std::io::Result<()> {
                     .filter(|(p, _)| p.starts_with(&prefix))
                     .map(|(p, b)| {
                         format!(
-                            "{{\"type\":\"file\",\"oid\":\"{:016x}\",\"size\":{},\"path\":\"{p}\"}}",
-                            fnv(b),
+                            "{{\"type\":\"file\",\"oid\":\"{}\",\"size\":{},\"path\":\"{p}\"}}",
+                            fnv1a64(b),
                             b.len()
                         )
                     })
@@ -260,7 +257,7 @@ fn serve(mut stream: TcpStream, state: &Mutex<State>) -> std::io::Result<()> {
             return respond(&mut stream, "404 Not Found", &headers, b"{\"error\":\"Entry not found\"}", head);
         };
         let headers = [
-            ("ETag", format!("\"{:016x}{:016x}\"", fnv(bytes), fnv(file.as_bytes()))),
+            ("ETag", format!("\"{}{}\"", fnv1a64(bytes), fnv1a64(file.as_bytes()))),
             ("X-Repo-Commit", repo.commit.clone()),
             ("Content-Type", "application/octet-stream".to_owned()),
         ];
